@@ -1,0 +1,1 @@
+"""The thesis' MuJoCo arm tasks as Gymnasium environments (registered on import)."""

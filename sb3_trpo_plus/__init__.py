@@ -1,0 +1,13 @@
+"""sb3-trpo-plus: TRPO with replay memory and warm-started conjugate gradient for Stable-Baselines3."""
+
+from importlib.metadata import PackageNotFoundError, version
+
+import grasp_envs  # noqa: F401  (registers the thesis' environments, so `TRPOPlus(..., "Grasper3D-v0")` works)
+from sb3_trpo_plus.trpo_plus import TRPOPlus
+
+try:
+    __version__ = version("sb3-trpo-plus")
+except PackageNotFoundError:  # pragma: no cover - running from a source tree without installation
+    __version__ = "0.0.0"
+
+__all__ = ["TRPOPlus", "__version__"]
