@@ -1,0 +1,66 @@
+"""With its extensions off, one TRPOPlus update is sb3-contrib's TRPO update.
+
+Both models start from the same seed, so they build the same weights, collect the same rollout
+(same env seeds, same torch draws for the actions) and run one ``train()`` on it.
+"""
+
+import numpy as np
+import pytest
+import sb3_contrib.trpo.trpo as sb3_contrib_trpo
+import torch as th
+from sb3_contrib import TRPO
+from sb3_contrib.common.utils import conjugate_gradient_solver
+from stable_baselines3.common.env_util import make_vec_env
+
+from sb3_trpo_plus import TRPOPlus
+
+KWARGS = dict(n_steps=128, batch_size=64, n_critic_updates=3, policy_kwargs=dict(net_arch=[32, 32]), seed=3)
+
+
+def _flat(model) -> dict[str, np.ndarray]:
+    return {k: v.detach().cpu().numpy().astype(np.float64) for k, v in model.policy.state_dict().items()}
+
+
+def _train_once(cls, env_id: str) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], object]:
+    model = cls("MlpPolicy", make_vec_env(env_id, n_envs=2, seed=7), **KWARGS)
+    initial = _flat(model)
+    model.learn(total_timesteps=model.n_steps * 2)  # one collect_rollouts + one train()
+    return initial, _flat(model), model
+
+
+def _zero_start_solver(matrix_vector_dot_fn, b, max_iter=10, residual_tol=1e-10):
+    """sb3-contrib's solver with its only difference from ours removed: start at 0, not 1e-4 * randn."""
+    randn_like = th.randn_like
+    th.randn_like = th.zeros_like  # type: ignore[assignment]
+    try:
+        return conjugate_gradient_solver(matrix_vector_dot_fn, b, max_iter=max_iter, residual_tol=residual_tol)
+    finally:
+        th.randn_like = randn_like  # type: ignore[assignment]
+
+
+@pytest.mark.parametrize("env_id", ["Pendulum-v1", "CartPole-v1"])
+def test_update_matches_sb3_contrib_trpo_exactly_with_the_same_cg_start(env_id: str, monkeypatch) -> None:
+    monkeypatch.setattr(sb3_contrib_trpo, "conjugate_gradient_solver", _zero_start_solver)
+    initial, trpo, trpo_model = _train_once(TRPO, env_id)
+    initial_plus, plus, plus_model = _train_once(TRPOPlus, env_id)
+    np.testing.assert_array_equal(trpo_model.rollout_buffer.observations, plus_model.rollout_buffer.observations)
+    for name in trpo:
+        np.testing.assert_array_equal(initial[name], initial_plus[name])
+        step_trpo, step_plus = trpo[name] - initial[name], plus[name] - initial[name]
+        scale = max(float(np.abs(step_trpo).max()), 1e-12)
+        # the *update* agrees to 1e-4 of its own size, element by element (plus float32 rounding of the weight)
+        rounding = 4 * np.finfo(np.float32).eps * np.abs(trpo[name])
+        np.testing.assert_array_less(np.abs(step_plus - step_trpo), 1e-4 * scale + rounding + 1e-12, err_msg=name)
+    moved = max(float(np.abs(trpo[n] - initial[n]).max()) for n in trpo)
+    assert moved > 1e-4, "the update must move the parameters, or the comparison proves nothing"
+
+
+@pytest.mark.parametrize("env_id", ["Pendulum-v1", "CartPole-v1"])
+def test_parameters_match_unmodified_sb3_contrib_trpo(env_id: str) -> None:
+    _, trpo, _ = _train_once(TRPO, env_id)
+    _, plus, _ = _train_once(TRPOPlus, env_id)
+    # sb3-contrib starts CG at 1e-4 * randn: compare the whole parameter vector, relatively
+    a = np.concatenate([trpo[n].ravel() for n in trpo])
+    b = np.concatenate([plus[n].ravel() for n in trpo])
+    relative = np.linalg.norm(b - a) / np.linalg.norm(a)
+    assert relative < 1e-4, f"relative difference {relative:.2e}"
