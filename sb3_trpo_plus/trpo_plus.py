@@ -489,6 +489,7 @@ class TRPOPlus(TRPO):
             weight_scale = th.as_tensor(scale, dtype=th.float32, device=self.device)
         if self.sub_sampling_factor > 1:
             k = self.sub_sampling_factor
+            n_replayed = len(range(0, len(observations), k)) - len(range(0, len(current.observations), k))
             observations, actions = observations[::k], actions[::k]
             sampling_log_prob, advantages = sampling_log_prob[::k], advantages[::k]
             weight_scale = None if weight_scale is None else weight_scale[::k]

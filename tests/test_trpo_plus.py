@@ -1,0 +1,251 @@
+"""TRPOPlus as an SB3 algorithm: validation, SB3 habits, replay memory, warm start, save/load."""
+
+import os
+import pathlib
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.logger import configure
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
+
+from sb3_trpo_plus import TRPOPlus
+
+TINY = dict(n_steps=64, batch_size=64, n_critic_updates=2, cg_max_steps=5, policy_kwargs=dict(net_arch=[16]))
+
+
+def _params(model: TRPOPlus) -> dict[str, np.ndarray]:
+    return {k: v.detach().cpu().numpy().copy() for k, v in model.policy.state_dict().items()}
+
+
+# ----------------------------------------------------------------------------- validation
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        ("replay_memory", -1),
+        ("replay_memory", 1.5),
+        ("target_kl", 0.0),
+        ("target_kl", -0.01),
+        ("target_kl", float("nan")),
+        ("cg_max_steps", 0),
+        ("cg_damping", -0.1),
+        ("line_search_shrinking_factor", 1.0),
+        ("line_search_shrinking_factor", 0.0),
+        ("line_search_max_iter", 0),
+        ("value_baseline", "quadratic"),
+        ("replay_is_clip", 0.0),
+        ("gamma", 1.5),
+        ("gae_lambda", -0.1),
+        ("n_steps", 0),
+        ("batch_size", 0),
+        ("sub_sampling_factor", 0),
+        ("n_critic_updates", -1),
+        ("learning_rate", -1e-3),
+        ("linear_baseline_l2", -2.0),
+    ],
+)
+def test_invalid_hyperparameter_is_named(name: str, value: object) -> None:
+    with pytest.raises(ValueError, match=f"`{name}`"):
+        TRPOPlus("MlpPolicy", "Pendulum-v1", **{**TINY, name: value})
+
+
+def test_batch_of_one_sample_is_rejected() -> None:
+    with pytest.raises(ValueError, match="n_steps \\* n_envs"):
+        TRPOPlus("MlpPolicy", make_vec_env("Pendulum-v1", n_envs=1), n_steps=1)
+
+
+def test_replay_needs_array_observations() -> None:
+    class DictObs(gym.Env):
+        observation_space = gym.spaces.Dict({"a": gym.spaces.Box(-1, 1, (2,))})
+        action_space = gym.spaces.Box(-1, 1, (1,))
+
+    with pytest.raises(ValueError, match="array observation space"):
+        TRPOPlus("MultiInputPolicy", DummyVecEnv([DictObs]), replay_memory=2)
+
+
+# ----------------------------------------------------------------------------- spaces and vec envs
+@pytest.mark.parametrize("env_id", ["Pendulum-v1", "CartPole-v1"])
+@pytest.mark.parametrize("vec_env_cls", [DummyVecEnv, SubprocVecEnv])
+@pytest.mark.parametrize("variant", [dict(), dict(replay_memory=2, cg_warm_start=True, value_baseline="linear")])
+def test_box_and_discrete_with_vec_envs(env_id: str, vec_env_cls: type, variant: dict) -> None:
+    kwargs = dict(start_method="forkserver") if vec_env_cls is SubprocVecEnv else None
+    env = make_vec_env(env_id, n_envs=2, seed=0, vec_env_cls=vec_env_cls, vec_env_kwargs=kwargs)
+    try:
+        model = TRPOPlus("MlpPolicy", env, seed=0, **TINY, **variant).learn(3 * 128)
+        action, _ = model.predict(env.observation_space.sample(), deterministic=True)
+        assert env.action_space.contains(action)
+    finally:
+        env.close()
+
+
+def test_gsde_and_subsampling() -> None:
+    model = TRPOPlus("MlpPolicy", "Pendulum-v1", use_sde=True, sde_sample_freq=4, sub_sampling_factor=2, replay_memory=1, **TINY)
+    model.learn(256)
+    assert model.logger.name_to_value["train/replay_samples"] == 32  # 64 replayed samples, every 2nd one
+
+
+def test_callbacks_progress_bar_and_tensorboard(tmp_path: pathlib.Path) -> None:
+    eval_env = make_vec_env("Pendulum-v1", n_envs=1, seed=1)
+    callbacks = [
+        EvalCallback(eval_env, eval_freq=64, n_eval_episodes=1, log_path=str(tmp_path / "eval"), verbose=0),
+        CheckpointCallback(save_freq=128, save_path=str(tmp_path / "ckpt"), name_prefix="trpo_plus"),
+    ]
+    model = TRPOPlus("MlpPolicy", "Pendulum-v1", tensorboard_log=str(tmp_path / "tb"), replay_memory=1, **TINY)
+    model.learn(256, callback=callbacks, progress_bar=True)
+    assert (tmp_path / "eval" / "evaluations.npz").exists()
+    assert sorted(p.name for p in (tmp_path / "ckpt").iterdir())
+    events = list((tmp_path / "tb").rglob("events.out.tfevents*"))
+    assert events and events[0].parent.name.startswith("TRPOPlus")
+    mean, _ = evaluate_policy(model, eval_env, n_eval_episodes=1)
+    assert np.isfinite(mean)
+
+
+def test_logs_the_promised_keys(tmp_path: pathlib.Path) -> None:
+    model = TRPOPlus("MlpPolicy", "Pendulum-v1", replay_memory=1, cg_warm_start=True, **TINY)
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(192)
+    header = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
+    for key in [
+        "train/policy_objective", "train/value_loss", "train/kl_divergence_loss", "train/explained_variance",
+        "train/is_line_search_success", "train/std", "train/cg_iterations", "train/cg_residual",
+        "train/cg_warm_start_cosine", "train/line_search_steps", "train/step_size", "train/replay_samples",
+        "train/replay_ess", "train/update_time", "train/fisher_vector_products",
+    ]:  # fmt: skip
+        assert key in header, key
+
+
+# ----------------------------------------------------------------------------- replay memory
+def test_replay_memory_is_bounded_and_replayed() -> None:
+    model = TRPOPlus("MlpPolicy", make_vec_env("Pendulum-v1", n_envs=2), replay_memory=2, **TINY)
+    model.learn(5 * 128)
+    assert len(model.rollout_memory) == 2
+    assert sum(r.n_samples for r in model.rollout_memory) == 2 * 64 * 2
+    assert model.logger.name_to_value["train/replay_samples"] == 2 * 64 * 2
+    assert 0 < model.logger.name_to_value["train/replay_ess"] <= 1
+
+
+def test_replay_with_vecnormalize_stores_raw_observations() -> None:
+    env = VecNormalize(make_vec_env("Pendulum-v1", n_envs=2, seed=0), norm_reward=True)
+    model = TRPOPlus("MlpPolicy", env, replay_memory=1, replay_critic=True, **TINY).learn(3 * 128)
+    stored = model.rollout_memory[0]
+    # Pendulum's raw observation is (cos, sin, angular velocity): |cos|, |sin| <= 1 before normalisation
+    assert np.all(np.abs(stored.observations[..., :2]) <= 1.0 + 1e-6)
+    assert np.all(stored.rewards <= 0)  # raw Pendulum rewards are costs
+    assert np.isfinite(model.logger.name_to_value["train/value_loss"])
+
+
+def test_critic_is_fit_on_current_rollout_only() -> None:
+    model = TRPOPlus("MlpPolicy", "Pendulum-v1", replay_memory=3, **TINY)
+    batches = []
+    original = model._critic_minibatches
+
+    def spy():
+        for obs, ret in original():
+            batches.append(len(obs))
+            yield obs, ret
+
+    model._critic_minibatches = spy  # type: ignore[method-assign]
+    model.learn(4 * 64)
+    assert max(batches) == 64 and sum(batches) == 4 * TINY["n_critic_updates"] * 64
+
+
+def test_warm_start_resets_after_rejected_line_search(monkeypatch) -> None:
+    model = TRPOPlus("MlpPolicy", "Pendulum-v1", cg_warm_start=True, **TINY)
+    model.learn(64)
+    assert model.previous_step is not None and np.any(model.previous_step != 0)
+    monkeypatch.setattr(model, "target_kl", 1e-30)  # no step can satisfy the constraint
+    before = _params(model)
+    model.learn(64, reset_num_timesteps=False)
+    assert model.previous_step is None
+    assert model.logger.name_to_value["train/is_line_search_success"] == 0.0
+    after = _params(model)
+    for name in before:
+        if "value" not in name:  # the critic still trains; actor weights are restored exactly
+            np.testing.assert_array_equal(after[name], before[name], err_msg=name)
+
+
+def test_nan_never_reaches_the_policy(monkeypatch) -> None:
+    model = TRPOPlus("MlpPolicy", "Pendulum-v1", **TINY)
+    model.learn(64)
+    before = _params(model)
+    original_get = model.rollout_buffer.get
+
+    def poisoned(batch_size=None):
+        for data in original_get(batch_size):
+            yield data._replace(advantages=data.advantages * float("nan"), returns=data.returns * float("nan"))
+
+    monkeypatch.setattr(model, "collect_rollouts", lambda *a, **k: True)
+    monkeypatch.setattr(model.rollout_buffer, "get", poisoned)
+    model.train()
+    for name, value in _params(model).items():
+        assert np.all(np.isfinite(value)), name
+        np.testing.assert_array_equal(value, before[name], err_msg=name)
+    assert model.logger.name_to_value["train/critic_skipped_steps"] > 0
+
+
+# ----------------------------------------------------------------------------- save / load
+@pytest.mark.parametrize("variant", [dict(), dict(replay_memory=2, cg_warm_start=True), dict(value_baseline="linear")])
+def test_save_load_resume_equals_uninterrupted(tmp_path: pathlib.Path, variant: dict) -> None:
+    n = 3 * 128
+
+    def make(seed: int = 5) -> tuple[TRPOPlus, object]:
+        env = make_vec_env("Pendulum-v1", n_envs=2, seed=seed)
+        return TRPOPlus("MlpPolicy", env, seed=seed, **TINY, **variant), env
+
+    straight, _ = make()
+    straight.learn(2 * n)
+
+    first, env = make()
+    first.learn(n)
+    first.save(tmp_path / "model")
+    del first
+    resumed = TRPOPlus.load(tmp_path / "model.zip", env=env, force_reset=False)
+    resumed.learn(n, reset_num_timesteps=False)
+
+    assert resumed.num_timesteps == straight.num_timesteps == 2 * n
+    a, b = _params(straight), _params(resumed)
+    for name in a:
+        np.testing.assert_allclose(b[name], a[name], rtol=1e-6, atol=1e-7, err_msg=name)
+    if variant.get("replay_memory"):
+        assert len(resumed.rollout_memory) == 2
+
+
+def test_save_can_leave_replay_memory_out(tmp_path: pathlib.Path) -> None:
+    model = TRPOPlus("MlpPolicy", "Pendulum-v1", replay_memory=3, **TINY).learn(4 * 64)
+    model.save(tmp_path / "with.zip")
+    model.save(tmp_path / "without.zip", exclude=["rollout_memory"])
+    assert os.path.getsize(tmp_path / "without.zip") < os.path.getsize(tmp_path / "with.zip")
+    loaded = TRPOPlus.load(tmp_path / "without.zip", env=make_vec_env("Pendulum-v1"))
+    assert len(loaded.rollout_memory) == 0
+    loaded.learn(64)
+
+
+def test_save_is_atomic(tmp_path: pathlib.Path, monkeypatch) -> None:
+    model = TRPOPlus("MlpPolicy", "Pendulum-v1", **TINY)
+    target = tmp_path / "model.zip"
+    model.save(target)
+    good = target.read_bytes()
+
+    import stable_baselines3.common.base_class as base_class
+
+    def crash(*args, **kwargs):
+        raise KeyboardInterrupt("crash mid-save")
+
+    monkeypatch.setattr(base_class, "save_to_zip_file", crash)
+    with pytest.raises(KeyboardInterrupt):
+        model.save(target)
+    assert target.read_bytes() == good
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.zip"]  # no temporary file left behind
+
+
+def test_predict_deterministic_after_load(tmp_path: pathlib.Path) -> None:
+    model = TRPOPlus("MlpPolicy", "CartPole-v1", **TINY).learn(128)
+    model.save(tmp_path / "m")
+    loaded = TRPOPlus.load(tmp_path / "m")
+    obs = np.array([0.01, -0.02, 0.03, 0.0], dtype=np.float32)
+    assert model.predict(obs, deterministic=True)[0] == loaded.predict(obs, deterministic=True)[0]
+    th.testing.assert_close(model.policy.state_dict()["action_net.weight"], loaded.policy.state_dict()["action_net.weight"])
