@@ -1,1 +1,44 @@
-"""The thesis' MuJoCo arm tasks as Gymnasium environments (registered on import)."""
+"""The thesis' MuJoCo arm tasks as Gymnasium environments, registered on import.
+
+``gymnasium.make("Grasper3D-v0")`` after ``import grasp_envs`` (or ``import sb3_trpo_plus``), or
+``gymnasium.make("grasp_envs:Grasper3D-v0")`` anywhere. Importing also asks multiprocessing's
+forkserver to preload this package, so ``SubprocVecEnv`` workers know the ids too.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import multiprocessing.forkserver
+
+from gymnasium.envs.registration import register, registry
+
+from grasp_envs.grasper3d_v0 import Grasper3DEnv
+from grasp_envs.reacher2d_v0 import Reacher2DEnv
+from grasp_envs.reacher3d_v0 import Reacher3DEnv
+from grasp_envs.wall_reacher3d_v0 import WallReacher3DEnv
+
+__all__ = ["ENV_IDS", "Grasper3DEnv", "Reacher2DEnv", "Reacher3DEnv", "WallReacher3DEnv"]
+
+# id -> (entry point, max_episode_steps, reward_threshold)
+_SPECS = {
+    "Reacher2D-v0": ("grasp_envs.reacher2d_v0:Reacher2DEnv", 50, -4.0),
+    "Reacher3D-v0": ("grasp_envs.reacher3d_v0:Reacher3DEnv", 100, -8.0),
+    "Grasper3D-v0": ("grasp_envs.grasper3d_v0:Grasper3DEnv", 100, 300.0),
+    "WallReacher3D-v0": ("grasp_envs.wall_reacher3d_v0:WallReacher3DEnv", 100, -12.0),
+}
+ENV_IDS = tuple(_SPECS)
+
+for _env_id, (_entry_point, _steps, _threshold) in _SPECS.items():
+    if _env_id not in registry:
+        register(id=_env_id, entry_point=_entry_point, max_episode_steps=_steps, reward_threshold=_threshold)
+
+
+def _preload_in_forkserver() -> None:
+    """Make forkserver children (SB3's default SubprocVecEnv start method) import this package."""
+    server = multiprocessing.forkserver._forkserver
+    modules = list(getattr(server, "_preload_modules", ["__main__"]))
+    if __name__ not in modules:
+        multiprocessing.forkserver.set_forkserver_preload([*modules, __name__])
+
+
+_preload_in_forkserver()

@@ -1,0 +1,126 @@
+"""Reacher2D-v0: the thesis' planar two-link reacher (section 5.2.1, Figure 6.1)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium import utils
+from numpy.typing import NDArray
+
+from grasp_envs.base import ArmEnv
+
+DEFAULT_CAMERA_CONFIG: dict[str, Any] = {"trackbodyid": 0, "distance": 0.9, "elevation": -90.0}
+
+
+class Reacher2DEnv(ArmEnv):
+    r"""
+    ## Description
+    A two-link planar arm (links of 0.1 m, thesis Figure 6.1, Gym's classic reacher) moves its fingertip
+    to a target drawn in a disc of radius 0.2 m around the shoulder.
+
+    ## Action Space
+    `Box(-1, 1, (2,), float32)`: torques (gear 200) on the shoulder hinge `joint0` and the elbow hinge `joint1`.
+
+    ## Observation Space
+    `Box(-inf, inf, (10,), float64)`:
+
+    | Num | Observation | Unit |
+    |-----|-------------|------|
+    | 0 | cos of `joint0` | unitless |
+    | 1 | cos of `joint1` | unitless |
+    | 2 | sin of `joint0` | unitless |
+    | 3 | sin of `joint1` | unitless |
+    | 4 | target x | m |
+    | 5 | target y | m |
+    | 6 | angular velocity of `joint0` | rad/s |
+    | 7 | angular velocity of `joint1` | rad/s |
+    | 8 | fingertip x - target x | m |
+    | 9 | fingertip y - target y | m |
+
+    ## Rewards
+    `reward = reward_dist + reward_ctrl`, computed after the physics step:
+
+    - `reward_dist` $= -w_{dist} \lVert p_{fingertip} - p_{target} \rVert$, `reward_dist_weight` (default 1)
+    - `reward_ctrl` $= -w_{ctrl} \lVert a \rVert^2$, `reward_control_weight` (default 1, as the thesis)
+
+    `info` holds both terms, `distance`, `is_success` (distance below `success_distance`, 0.02 m) and `unstable`.
+
+    ## Starting State
+    Joint angles $\mathcal{U}(-s, s)$ around zero with $s$ = `reset_noise_scale` (0.1), velocities
+    $\mathcal{U}(-0.005, 0.005)$, target uniform in the disc of radius 0.2 m (every target is reachable: the
+    fingertip reaches 0.21 m).
+
+    ## Episode End
+    No termination (except `info["unstable"]`); truncation after 50 steps (`max_episode_steps`).
+
+    ## Arguments
+    | Parameter | Default | Description |
+    |-----------|---------|-------------|
+    | `xml_file` | `"reacher2d.xml"` | MuJoCo model (bare names are looked up in `grasp_envs/assets`) |
+    | `frame_skip` | `2` | physics steps of 0.01 s per action |
+    | `default_camera_config` | top view | camera of `render()` |
+    | `reward_dist_weight` | `1.0` | weight of `reward_dist` |
+    | `reward_control_weight` | `1.0` | weight of `reward_ctrl` |
+    | `reset_noise_scale` | `0.1` | half-width of the initial joint-angle noise (rad) |
+    | `success_distance` | `0.02` | fingertip-target distance counted as success (m) |
+
+    ## Version History
+    * v0: first release. Differs from the thesis' Gym reacher: the reward is computed after the physics
+      step (Gym's v2 bug fixed), the target is a mocap body (no slide joints in the state), success is reported.
+    """
+
+    def __init__(
+        self,
+        xml_file: str = "reacher2d.xml",
+        frame_skip: int = 2,
+        default_camera_config: dict[str, Any] = DEFAULT_CAMERA_CONFIG,
+        reward_dist_weight: float = 1.0,
+        reward_control_weight: float = 1.0,
+        reset_noise_scale: float = 0.1,
+        success_distance: float = 0.02,
+        **kwargs: Any,
+    ):
+        utils.EzPickle.__init__(
+            self, xml_file, frame_skip, default_camera_config, reward_dist_weight, reward_control_weight,
+            reset_noise_scale, success_distance, **kwargs,
+        )  # fmt: skip
+        self._reward_dist_weight = reward_dist_weight
+        self._reward_control_weight = reward_control_weight
+        self._reset_noise_scale = reset_noise_scale
+        self._success_distance = success_distance
+        ArmEnv.__init__(self, xml_file, frame_skip, default_camera_config, observation_dim=10, **kwargs)
+
+    def fingertip_to_target(self) -> NDArray[np.float64]:
+        return self.site_pos("fingertip") - self.data.mocap_pos[0]
+
+    def distance(self) -> float:
+        return float(np.linalg.norm(self.fingertip_to_target()))
+
+    def _get_rew(self, action: NDArray[np.float64]) -> tuple[float, dict[str, Any]]:
+        distance = self.distance()
+        reward_dist = -self._reward_dist_weight * distance
+        reward_ctrl = -self._reward_control_weight * float(np.square(action).sum())
+        info = {"reward_dist": reward_dist, "reward_ctrl": reward_ctrl, "distance": distance}
+        return reward_dist + reward_ctrl, info
+
+    def _is_success(self) -> bool:
+        return self.distance() < self._success_distance
+
+    def _get_obs(self) -> NDArray[np.float64]:
+        theta = self.data.qpos[:2]
+        return np.concatenate(
+            [np.cos(theta), np.sin(theta), self.data.mocap_pos[0, :2], self.data.qvel[:2], self.fingertip_to_target()[:2]]
+        )
+
+    def reset_model(self) -> NDArray[np.float64]:
+        noise = self._reset_noise_scale
+        qpos = self.init_qpos + self.np_random.uniform(-noise, noise, size=self.model.nq)
+        qvel = self.init_qvel + self.np_random.uniform(-0.005, 0.005, size=self.model.nv)
+        while True:
+            goal = self.np_random.uniform(-0.2, 0.2, size=2)
+            if np.linalg.norm(goal) < 0.2:
+                break
+        self.data.mocap_pos[0, :2] = goal
+        self.set_state(qpos, qvel)
+        return self._get_obs()

@@ -1,0 +1,162 @@
+"""Reacher3D-v0: the arm hanging from the ceiling reaches a target on the table (thesis section 5.2.2)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium import utils
+from numpy.typing import NDArray
+
+from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv
+
+ARM_JOINTS = ("shoulder_y", "shoulder_z", "elbow_y", "elbow_z")
+FLOOR_Z = -0.2
+TARGET_HALF_SIZE = 0.012
+
+
+class Reacher3DEnv(ArmEnv):
+    r"""
+    ## Description
+    A 4-DoF arm hangs from the ceiling (shoulder at the origin, floor at z = -0.2 m): shoulder hinges about
+    y and z, elbow hinges about y and z, all unlimited (thesis Table 5.1). Upper arm and forearm are
+    capsules of 0.1 m; the palm sits 0.11 m along the forearm. The palm must reach a 24 mm target cube
+    lying on the table.
+
+    ## Action Space
+    `Box(-0.5, 0.5, (4,), float32)`: torques (gear 200) on `shoulder_y`, `shoulder_z`, `elbow_y`, `elbow_z`.
+
+    ## Observation Space
+    `Box(-inf, inf, (18,), float64)`:
+
+    | Num | Observation | Unit |
+    |-----|-------------|------|
+    | 0 | cos of `shoulder_y` | unitless |
+    | 1 | cos of `shoulder_z` | unitless |
+    | 2 | cos of `elbow_y` | unitless |
+    | 3 | cos of `elbow_z` | unitless |
+    | 4 | sin of `shoulder_y` | unitless |
+    | 5 | sin of `shoulder_z` | unitless |
+    | 6 | sin of `elbow_y` | unitless |
+    | 7 | sin of `elbow_z` | unitless |
+    | 8 | angular velocity of `shoulder_y` | rad/s |
+    | 9 | angular velocity of `shoulder_z` | rad/s |
+    | 10 | angular velocity of `elbow_y` | rad/s |
+    | 11 | angular velocity of `elbow_z` | rad/s |
+    | 12 | target x | m |
+    | 13 | target y | m |
+    | 14 | target z | m |
+    | 15 | palm x - target x | m |
+    | 16 | palm y - target y | m |
+    | 17 | palm z - target z | m |
+
+    ## Rewards
+    `reward = reward_dist + reward_ctrl`, computed after the physics step (thesis eq. 5.1):
+
+    - `reward_dist` $= -w_{dist} \lVert p_{palm} - p_{target} \rVert$, `reward_dist_weight` (default 1)
+    - `reward_ctrl` $= -w_{ctrl} \lVert a \rVert^2$, `reward_control_weight` (default 1)
+
+    `info` holds the terms, `distance`, `is_success` (palm-target distance below `success_distance`,
+    0.02 m) and `unstable`.
+
+    ## Starting State
+    Arm horizontal along +x with joint noise $\mathcal{U}(-s, s)$, $s$ = `reset_noise_scale` (0.1 rad),
+    velocities $\mathcal{U}(-0.005, 0.005)$. The target lies on the floor, uniform in the disc of radius
+    0.1 m under the shoulder.
+
+    ## Episode End
+    No termination (except `info["unstable"]`); truncation after 100 steps (`max_episode_steps`, as the thesis).
+
+    ## Arguments
+    | Parameter | Default | Description |
+    |-----------|---------|-------------|
+    | `xml_file` | `"reacher3d.xml"` | MuJoCo model |
+    | `frame_skip` | `2` | physics steps of 0.01 s per action (control period 0.02 s) |
+    | `default_camera_config` | oblique view | camera of `render()` |
+    | `reward_dist_weight` | `1.0` | weight of `reward_dist` |
+    | `reward_control_weight` | `1.0` | weight of `reward_ctrl` |
+    | `reset_noise_scale` | `0.1` | half-width of the initial joint-angle noise (rad) |
+    | `success_distance` | `0.02` | palm-target distance counted as success (m) |
+
+    ## Version History
+    * v0: first release. Differs from the thesis: angles observed as cos/sin (unlimited hinges), reward after
+      the physics step, target drawn in a disc of radius 0.1 m instead of the ±0.1 m square (the square's
+      corners are 0.235 m from the shoulder, beyond the palm's 0.21 m reach), target is a mocap body.
+    """
+
+    arm_joints: tuple[str, ...] = ARM_JOINTS
+
+    def __init__(
+        self,
+        xml_file: str = "reacher3d.xml",
+        frame_skip: int = 2,
+        default_camera_config: dict[str, Any] = DEFAULT_CAMERA_CONFIG_3D,
+        reward_dist_weight: float = 1.0,
+        reward_control_weight: float = 1.0,
+        reset_noise_scale: float = 0.1,
+        success_distance: float = 0.02,
+        **kwargs: Any,
+    ):
+        utils.EzPickle.__init__(
+            self, xml_file, frame_skip, default_camera_config, reward_dist_weight, reward_control_weight,
+            reset_noise_scale, success_distance, **kwargs,
+        )  # fmt: skip
+        self._init_reacher(reward_dist_weight, reward_control_weight, reset_noise_scale, success_distance)
+        ArmEnv.__init__(self, xml_file, frame_skip, default_camera_config, observation_dim=self._observation_dim, **kwargs)
+
+    _observation_dim = 18
+
+    def _init_reacher(
+        self, reward_dist_weight: float, reward_control_weight: float, reset_noise_scale: float, success_distance: float
+    ) -> None:
+        self._reward_dist_weight = reward_dist_weight
+        self._reward_control_weight = reward_control_weight
+        self._reset_noise_scale = reset_noise_scale
+        self._success_distance = success_distance
+
+    # named quantities
+    def target_pos(self) -> NDArray[np.float64]:
+        return self.data.mocap_pos[0]
+
+    def palm_to_target(self) -> NDArray[np.float64]:
+        return self.site_pos("palm") - self.target_pos()
+
+    def distance(self) -> float:
+        return float(np.linalg.norm(self.palm_to_target()))
+
+    def _reacher_terms(self, action: NDArray[np.float64]) -> dict[str, float]:
+        distance = self.distance()
+        return {
+            "reward_dist": -self._reward_dist_weight * distance,
+            "reward_ctrl": -self._reward_control_weight * float(np.square(action).sum()),
+            "distance": distance,
+        }
+
+    def _get_rew(self, action: NDArray[np.float64]) -> tuple[float, dict[str, Any]]:
+        info = self._reacher_terms(action)
+        return info["reward_dist"] + info["reward_ctrl"], info
+
+    def _is_success(self) -> bool:
+        return self.distance() < self._success_distance
+
+    def _get_obs(self) -> NDArray[np.float64]:
+        angles = self.data.qpos[:4]
+        return np.concatenate(
+            [np.cos(angles), np.sin(angles), self.data.qvel[:4], self.target_pos(), self.palm_to_target()]
+        )
+
+    def _sample_target(self) -> NDArray[np.float64]:
+        radius = 0.1 * np.sqrt(self.np_random.uniform())
+        angle = self.np_random.uniform(-np.pi, np.pi)
+        return np.array([radius * np.cos(angle), radius * np.sin(angle), FLOOR_Z + TARGET_HALF_SIZE])
+
+    def _initial_qpos(self) -> NDArray[np.float64]:
+        noise = self._reset_noise_scale
+        return self.init_qpos + self.np_random.uniform(-noise, noise, size=self.model.nq)
+
+    def reset_model(self) -> NDArray[np.float64]:
+        self.data.mocap_pos[0] = self._sample_target()
+        qpos = self._initial_qpos()
+        qvel = self.init_qvel + self.np_random.uniform(-0.005, 0.005, size=self.model.nv)
+        self.set_state(qpos, qvel)
+        return self._get_obs()
