@@ -115,7 +115,7 @@ class ArmEnv(MujocoEnv, utils.EzPickle):
         state_ok = np.isfinite(self.data.qpos).all() and np.isfinite(self.data.qvel).all()
         return warnings_after > warnings_before or not state_ok
 
-    def step(self, action: Any) -> tuple[NDArray[np.float64], float, bool, bool, dict[str, Any]]:
+    def step(self, action: Any) -> tuple[NDArray[np.float64], float, bool, bool, dict[str, Any]]:  # type: ignore[override]
         action = self._checked_action(action)
         unstable = self._simulate(action)
         if unstable:

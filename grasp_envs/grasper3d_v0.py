@@ -84,8 +84,8 @@ class Grasper3DEnv(ArmEnv):
     `reward_mode="thesis"`: the thesis' reward, with its bugs fixed (after the physics step, contacts by
     geom name, height from the cube geom):
 
-    - `reward_dist` $= -\lVert p_{palm} - p_{cube} \rVert - \lVert p_{right} - p_{cube} \rVert - \lVert p_{left} - p_{cube} \rVert
-      + \lVert p_{left} - p_{right} \rVert$
+    - `reward_dist` $= -\lVert p_{palm} - p_{cube} \rVert - \lVert p_{right} - p_{cube} \rVert
+      - \lVert p_{left} - p_{cube} \rVert + \lVert p_{left} - p_{right} \rVert$
     - `reward_ctrl` $= -w_{ctrl} \lVert a \rVert^2$ (default 1 here)
     - `reward_contact` = number of claw capsules touching the cube (0..8)
     - `reward_floor` = minus the number of bottom claw capsules touching the floor (0..4)
@@ -99,8 +99,9 @@ class Grasper3DEnv(ArmEnv):
 
     ## Episode End
     Success (`info["is_success"]`): $h \ge 0.05$ m while both claw halves touch the cube.
-    Termination: on success when `terminate_on_success` (default: only in `reward_mode="thesis"`, where the
-    lift bonus ends the episode); on `info["unstable"]`. Truncation after 100 steps (`max_episode_steps`).
+    Termination: when `terminate_on_success` (default: only in `reward_mode="thesis"`), on success, or in
+    thesis mode when the lift bonus is paid (height reached with more than 3 capsules on the cube); on
+    `info["unstable"]`. Truncation after 100 steps (`max_episode_steps`).
 
     ## Arguments
     | Parameter | Default | Description |
@@ -159,11 +160,14 @@ class Grasper3DEnv(ArmEnv):
         self._terminate_on_success = thesis if terminate_on_success is None else terminate_on_success
         self._reset_noise_scale = reset_noise_scale
         self._lift_height = lift_height
+        self._lift_bonus_paid = False
         ArmEnv.__init__(self, xml_file, frame_skip, default_camera_config, observation_dim=31, **kwargs)
 
         self._claw_geoms = {side: self.geom_ids([f"claw_{side}_{part}" for part in CLAW_PARTS]) for side in CLAW_SIDES}
         self._all_claw_geoms = np.concatenate(list(self._claw_geoms.values()))
-        self._bottom_claw_geoms = self.geom_ids([f"claw_{side}_{p}" for side in CLAW_SIDES for p in CLAW_PARTS if "bottom" in p])
+        self._bottom_claw_geoms = self.geom_ids(
+            [f"claw_{side}_{p}" for side in CLAW_SIDES for p in CLAW_PARTS if "bottom" in p]
+        )
         self._cube_geom = self.geom_ids(["cube"])
         self._floor_geom = self.geom_ids(["floor"])
         self._arm_qpos = np.array([self.model.joint(j).qposadr[0] for j in ARM_JOINTS])
@@ -216,6 +220,7 @@ class Grasper3DEnv(ArmEnv):
             right, left = self.site_pos("claw_right"), self.site_pos("claw_left")
             n_cube = contacts["right"] + contacts["left"]
             lifted = height >= self._lift_height and n_cube > 3
+            self._lift_bonus_paid = lifted
             terms = {
                 "reward_dist": float(
                     -np.linalg.norm(self.site_pos("palm") - cube) - np.linalg.norm(right - cube)
@@ -230,7 +235,8 @@ class Grasper3DEnv(ArmEnv):
         else:
             solved = grasped and height >= self._lift_height
             terms = {
-                "reward_reach": self._reward_reach_weight * (1.0 - float(np.tanh(10.0 * np.linalg.norm(self.site_pos("grip") - cube)))),
+                "reward_reach": self._reward_reach_weight
+                * (1.0 - float(np.tanh(10.0 * np.linalg.norm(self.site_pos("grip") - cube)))),
                 "reward_grasp": self._reward_grasp_weight * float(grasped),
                 "reward_lift": self._reward_lift_weight * float(grasped) * min(max(height, 0.0) / self._lift_height, 1.0),
                 "reward_hold": self._reward_hold_weight * float(solved),
@@ -240,7 +246,10 @@ class Grasper3DEnv(ArmEnv):
         return float(sum(terms.values())), info
 
     def _is_terminal(self) -> bool:
-        return self._terminate_on_success and self._is_success()
+        if not self._terminate_on_success:
+            return False
+        # thesis mode: the episode ends with the lift bonus (height and more than 3 capsules on the cube)
+        return self._lift_bonus_paid if self._reward_mode == "thesis" else self._is_success()
 
     # ------------------------------------------------------------------ observation and reset
     def _get_obs(self) -> NDArray[np.float64]:
@@ -264,6 +273,7 @@ class Grasper3DEnv(ArmEnv):
         )
 
     def reset_model(self) -> NDArray[np.float64]:
+        self._lift_bonus_paid = False
         noise = self._reset_noise_scale
         qpos = self.init_qpos.copy()
         qpos[self._arm_qpos] += self.np_random.uniform(-noise, noise, size=len(ARM_JOINTS))

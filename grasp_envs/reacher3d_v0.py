@@ -141,9 +141,7 @@ class Reacher3DEnv(ArmEnv):
 
     def _get_obs(self) -> NDArray[np.float64]:
         angles = self.data.qpos[:4]
-        return np.concatenate(
-            [np.cos(angles), np.sin(angles), self.data.qvel[:4], self.target_pos(), self.palm_to_target()]
-        )
+        return np.concatenate([np.cos(angles), np.sin(angles), self.data.qvel[:4], self.target_pos(), self.palm_to_target()])
 
     def _sample_target(self) -> NDArray[np.float64]:
         radius = 0.1 * np.sqrt(self.np_random.uniform())

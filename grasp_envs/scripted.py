@@ -16,7 +16,9 @@ from grasp_envs.base import ArmEnv
 _VELOCITY_GAIN = 25.0  # joint-velocity servo gain (1/s); armature 1, so torque = gain * velocity error
 
 
-def _damped_least_squares(jacobian: NDArray[np.float64], error: NDArray[np.float64], damping: float = 1e-3) -> NDArray[np.float64]:
+def _damped_least_squares(
+    jacobian: NDArray[np.float64], error: NDArray[np.float64], damping: float = 1e-3
+) -> NDArray[np.float64]:
     jjt = jacobian @ jacobian.T
     return jacobian.T @ np.linalg.solve(jjt + damping * np.eye(len(jjt)), error)
 
@@ -34,7 +36,9 @@ def _site_jacobian(env: ArmEnv, site: str, dofs: NDArray[np.int64]) -> NDArray[n
     return jacp[:, dofs]
 
 
-def reach(env: ArmEnv, site: str, goal: NDArray[np.float64], dofs: NDArray[np.int64], speed: float = 8.0) -> NDArray[np.float64]:
+def reach(
+    env: ArmEnv, site: str, goal: NDArray[np.float64], dofs: NDArray[np.int64], speed: float = 8.0
+) -> NDArray[np.float64]:
     """Commands moving ``site`` towards ``goal`` with the joints ``dofs``."""
     error = goal - env.data.site(site).xpos
     velocity = _damped_least_squares(_site_jacobian(env, site, dofs), speed * error)

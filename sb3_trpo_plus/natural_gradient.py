@@ -53,9 +53,7 @@ def flat_gradient(
     Parameters that ``output`` does not depend on get a zero gradient, so the result always has
     ``sum(p.numel())`` entries in the order of ``params``.
     """
-    grads = th.autograd.grad(
-        output, list(params), retain_graph=retain_graph, create_graph=create_graph, allow_unused=True
-    )
+    grads = th.autograd.grad(output, list(params), retain_graph=retain_graph, create_graph=create_graph, allow_unused=True)
     return th.cat([(th.zeros_like(p) if g is None else g).reshape(-1) for g, p in zip(grads, params, strict=True)])
 
 

@@ -36,7 +36,6 @@ from sb3_trpo_plus.natural_gradient import (
     conjugate_gradient,
     fisher_vector_product,
     flat_gradient,
-    flat_parameters,
 )
 from sb3_trpo_plus.replay import (
     RolloutRecorder,
@@ -106,18 +105,27 @@ def validate_hyperparameters(
 
     if not callable(learning_rate):
         need(is_real(learning_rate) and learning_rate > 0, "learning_rate", learning_rate, "a positive number or a schedule")
-    for name, value in (("n_steps", n_steps), ("batch_size", batch_size), ("cg_max_steps", cg_max_steps),
-                        ("line_search_max_iter", line_search_max_iter), ("sub_sampling_factor", sub_sampling_factor)):
+    for name, value in (
+        ("n_steps", n_steps),
+        ("batch_size", batch_size),
+        ("cg_max_steps", cg_max_steps),
+        ("line_search_max_iter", line_search_max_iter),
+        ("sub_sampling_factor", sub_sampling_factor),
+    ):
         need(is_int(value) and value >= 1, name, value, "an integer >= 1")
     need(is_int(n_critic_updates) and n_critic_updates >= 0, "n_critic_updates", n_critic_updates, "an integer >= 0")
     need(is_int(replay_memory) and replay_memory >= 0, "replay_memory", replay_memory, "an integer >= 0 (k past rollouts)")
     need(is_real(gamma) and 0.0 <= gamma <= 1.0, "gamma", gamma, "in [0, 1]")
     need(is_real(gae_lambda) and 0.0 <= gae_lambda <= 1.0, "gae_lambda", gae_lambda, "in [0, 1]")
-    need(is_real(cg_damping) and math.isfinite(cg_damping) and cg_damping >= 0, "cg_damping", cg_damping, "a finite number >= 0")
+    need(
+        is_real(cg_damping) and math.isfinite(cg_damping) and cg_damping >= 0, "cg_damping", cg_damping, "a finite number >= 0"
+    )
     need(is_real(target_kl) and math.isfinite(target_kl) and target_kl > 0, "target_kl", target_kl, "a finite number > 0")
     need(
         is_real(line_search_shrinking_factor) and 0.0 < line_search_shrinking_factor < 1.0,
-        "line_search_shrinking_factor", line_search_shrinking_factor, "in the open interval (0, 1)",
+        "line_search_shrinking_factor",
+        line_search_shrinking_factor,
+        "in the open interval (0, 1)",
     )
     if replay_is_clip is not None:
         need(is_real(replay_is_clip) and replay_is_clip > 0, "replay_is_clip", replay_is_clip, "None or a number > 0")
@@ -261,12 +269,12 @@ class TRPOPlus(TRPO):
         self.cg_warm_start_rescale = bool(cg_warm_start_rescale)
         self.value_baseline = value_baseline
         self.linear_baseline_l2 = float(linear_baseline_l2)
-        if self._needs_rollout_record and self.observation_space is not None:
-            if not isinstance(self.observation_space, spaces.Box | spaces.Discrete | spaces.MultiDiscrete | spaces.MultiBinary):
-                raise ValueError(
-                    "`replay_memory` > 0 and `value_baseline='linear'` need an array observation space, "
-                    f"got {type(self.observation_space).__name__}"
-                )
+        array_spaces = spaces.Box | spaces.Discrete | spaces.MultiDiscrete | spaces.MultiBinary
+        if self._needs_rollout_record and not isinstance(self.observation_space, array_spaces):
+            raise ValueError(
+                "`replay_memory` > 0 and `value_baseline='linear'` need an array observation space, "
+                f"got {type(self.observation_space).__name__}"
+            )
         # State that survives save/load (see `_setup_model`, which keeps loaded values)
         self.rollout_memory: deque[StoredRollout] | None = None
         self.linear_baseline: LinearFeatureBaseline | None = None
@@ -388,8 +396,10 @@ class TRPOPlus(TRPO):
                 terminal_obs = info.get("terminal_observation")
                 if terminal_obs is not None and info.get("TimeLimit.truncated", False):
                     if recorder is not None:
-                        raw_terminal = vec_normalize.unnormalize_obs(terminal_obs) if vec_normalize is not None else terminal_obs
-                        recorder.add_truncation(int(idx), raw_terminal, int(episode_timesteps[idx]))
+                        raw_terminal = (
+                            vec_normalize.unnormalize_obs(terminal_obs) if vec_normalize is not None else terminal_obs
+                        )
+                        recorder.add_truncation(int(idx), np.asarray(raw_terminal), int(episode_timesteps[idx]))
                     # Time-limit truncation: bootstrap with the value function (SB3 issue #633)
                     terminal_obs_t = self.policy.obs_to_tensor(terminal_obs)[0]
                     with th.no_grad():
@@ -406,7 +416,7 @@ class TRPOPlus(TRPO):
                 log_probs,
             )
             self._last_obs = new_obs  # type: ignore[assignment]
-            self._last_original_obs = vec_normalize.get_original_obs() if vec_normalize is not None else new_obs
+            self._last_original_obs = vec_normalize.get_original_obs() if vec_normalize is not None else new_obs  # type: ignore[assignment]
             self._last_episode_starts = dones
 
         with th.no_grad():
@@ -451,7 +461,9 @@ class TRPOPlus(TRPO):
             gamma=self.gamma,
             gae_lambda=self.gae_lambda,
             normalize_obs=vec_normalize.normalize_obs if vec_normalize is not None else None,  # type: ignore[arg-type]
-            normalize_reward=vec_normalize.normalize_reward if vec_normalize is not None and vec_normalize.norm_reward else None,
+            normalize_reward=vec_normalize.normalize_reward
+            if vec_normalize is not None and vec_normalize.norm_reward
+            else None,
         )
 
     def _write_linear_baseline_advantages(self) -> None:
@@ -522,7 +534,9 @@ class TRPOPlus(TRPO):
         )
         direction = cg.solution
         quadratic_form = cg.quadratic_form if cg.quadratic_form > 0 else float(th.dot(direction, fvp(direction)))
-        full_step = math.sqrt(2.0 * self.target_kl / quadratic_form) * direction if quadratic_form > 0 else direction * math.nan
+        full_step = (
+            math.sqrt(2.0 * self.target_kl / quadratic_form) * direction if quadratic_form > 0 else direction * math.nan
+        )
 
         def evaluate() -> tuple[float, float]:
             new_distribution = self.policy.get_distribution(batch.observations)
@@ -586,9 +600,9 @@ class TRPOPlus(TRPO):
         current = next(self.rollout_buffer.get(batch_size=None))
         obs_list, ret_list = [current.observations], [current.returns]
         for rollout in self.rollout_memory:
-            flat_obs, _, _, returns = self._recompute(rollout)
+            flat_obs, _, _, rollout_returns = self._recompute(rollout)
             obs_list.append(self.policy.obs_to_tensor(flat_obs)[0])  # type: ignore[arg-type]
-            ret_list.append(th.as_tensor(returns.reshape(-1), device=self.device))
+            ret_list.append(th.as_tensor(rollout_returns.reshape(-1), device=self.device))
         observations, returns = th.cat(obs_list), th.cat(ret_list)  # type: ignore[arg-type]
         order = th.as_tensor(np.random.permutation(len(returns)), device=self.device)
         for start in range(0, len(returns), self.batch_size):
@@ -624,7 +638,10 @@ class TRPOPlus(TRPO):
         record("train/policy_objective", line_search.objective if line_search.accepted else stats["objective_before"])
         record("train/value_loss", value_loss)
         record("train/kl_divergence_loss", line_search.kl)
-        record("train/explained_variance", explained_variance(self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten()))
+        record(
+            "train/explained_variance",
+            explained_variance(self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten()),
+        )
         record("train/is_line_search_success", float(line_search.accepted))
         if hasattr(self.policy, "log_std"):
             record("train/std", th.exp(self.policy.log_std).mean().item())  # type: ignore[operator]

@@ -116,9 +116,7 @@ def _explicit_fisher(policy: ActorCriticPolicy, obs: th.Tensor) -> th.Tensor:
     return th.autograd.functional.hessian(kl, theta0)
 
 
-@pytest.mark.parametrize(
-    "action_space", [spaces.Box(-1, 1, (2,)), spaces.Discrete(3)], ids=["gaussian", "categorical"]
-)
+@pytest.mark.parametrize("action_space", [spaces.Box(-1, 1, (2,)), spaces.Discrete(3)], ids=["gaussian", "categorical"])
 def test_fisher_vector_product_equals_explicit_fisher(action_space: spaces.Space) -> None:
     th.manual_seed(0)
     observation_space = spaces.Box(-1, 1, (3,))

@@ -78,7 +78,9 @@ def test_compute_gae_matches_sb3_rollout_buffer() -> None:
     values = rng.normal(size=(n_steps, n_envs)).astype(np.float32)
     starts = (rng.random((n_steps, n_envs)) < 0.2).astype(np.float32)
     for t in range(n_steps):
-        buffer.add(np.zeros((n_envs, 2)), np.zeros((n_envs, 1)), rewards[t], starts[t], th.as_tensor(values[t]), th.zeros(n_envs))
+        buffer.add(
+            np.zeros((n_envs, 2)), np.zeros((n_envs, 1)), rewards[t], starts[t], th.as_tensor(values[t]), th.zeros(n_envs)
+        )
     last_values, last_dones = rng.normal(size=n_envs).astype(np.float32), np.array([0.0, 1.0, 0.0])
     buffer.compute_returns_and_advantage(th.as_tensor(last_values), last_dones)
     advantages, returns = compute_gae(rewards, values, starts, last_values, last_dones, 0.9, 0.8)

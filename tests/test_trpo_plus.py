@@ -83,7 +83,9 @@ def test_box_and_discrete_with_vec_envs(env_id: str, vec_env_cls: type, variant:
 
 
 def test_gsde_and_subsampling() -> None:
-    model = TRPOPlus("MlpPolicy", "Pendulum-v1", use_sde=True, sde_sample_freq=4, sub_sampling_factor=2, replay_memory=1, **TINY)
+    model = TRPOPlus(
+        "MlpPolicy", "Pendulum-v1", use_sde=True, sde_sample_freq=4, sub_sampling_factor=2, replay_memory=1, **TINY
+    )
     model.learn(256)
     assert model.logger.name_to_value["train/replay_samples"] == 32  # 64 replayed samples, every 2nd one
 

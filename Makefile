@@ -1,0 +1,50 @@
+# sb3-trpo-plus: every target sets itself up (virtualenv + CPU torch) on a fresh machine.
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+ENV ?= Reacher2D-v0
+ALGO ?= trpo_plus
+STEPS ?=
+SEED ?= 0
+export MUJOCO_GL ?= egl
+
+.PHONY: install test test-fast lint type train docs bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --upgrade pip
+	# CPU build of torch first (a local wheel); a later range that 2.13.0 satisfies installs nothing more
+	$(BIN)/pip install "torch==2.13.0"
+	$(BIN)/pip install -e ".[test,zoo,docs]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+test: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
+	$(BIN)/pytest -n 2 -q
+
+test-fast: $(STAMP)
+	$(BIN)/pytest -n 2 -q -m "not slow"
+
+lint: $(STAMP)
+	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+
+type: $(STAMP)
+	$(BIN)/mypy
+
+train: $(STAMP)
+	$(BIN)/trpo-plus main --env $(ENV) --algo $(ALGO) --seed $(SEED) $(if $(STEPS),--steps $(STEPS),)
+
+docs: $(STAMP)
+	$(BIN)/mkdocs build --strict
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/speed.py
+	$(BIN)/python benchmarks/scaling.py
+
+clean:
+	rm -rf $(VENV) site .pytest_cache .mypy_cache .ruff_cache

@@ -1,0 +1,210 @@
+"""grasp_envs: API conformance, determinism, robustness, rewards, docs tables, rendering, solvability."""
+
+import os
+import pickle
+import re
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import SubprocVecEnv
+
+import grasp_envs
+from grasp_envs.scripted import SCRIPTED_POLICIES
+
+ENV_IDS = grasp_envs.ENV_IDS
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_gymnasium_and_sb3_checkers(env_id: str) -> None:
+    env = gym.make(env_id)
+    gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(gym.make(env_id), warn=True)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_namespaced_id_and_max_episode_steps(env_id: str) -> None:
+    env = gym.make(f"grasp_envs:{env_id}")
+    assert env.spec.max_episode_steps == (50 if env_id == "Reacher2D-v0" else 100)
+    assert env.spec.reward_threshold is not None
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_seeded_determinism(env_id: str) -> None:
+    def rollout(seed: int) -> np.ndarray:
+        env = gym.make(env_id)
+        env.action_space.seed(seed)
+        obs, _ = env.reset(seed=seed)
+        trace = [obs]
+        for _ in range(30):
+            obs, reward, *_ = env.step(env.action_space.sample())
+            trace.append(np.append(obs, reward))
+        return np.concatenate(trace)
+
+    np.testing.assert_array_equal(rollout(3), rollout(3))
+    assert not np.array_equal(rollout(3), rollout(4))
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_randomised_resets(env_id: str) -> None:
+    env = gym.make(env_id)
+    first = [env.reset(seed=s)[0] for s in range(5)]
+    assert len({tuple(np.round(o, 6)) for o in first}) == 5
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_pickle_round_trip(env_id: str) -> None:
+    env = gym.make(env_id, reset_noise_scale=0.05)
+    env.reset(seed=0)
+    clone = pickle.loads(pickle.dumps(env))
+    a, _ = env.reset(seed=11)
+    b, _ = clone.reset(seed=11)
+    np.testing.assert_array_equal(a, b)
+    assert clone.unwrapped._reset_noise_scale == 0.05
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_random_actions_stay_finite_and_rewards_decompose(env_id: str) -> None:
+    env = gym.make(env_id)
+    env.action_space.seed(0)
+    env.reset(seed=0)
+    for _ in range(10_000 // len(ENV_IDS)):
+        action = env.action_space.sample() * 3.0  # also out of the box: clipped
+        obs, reward, terminated, truncated, info = env.step(action)
+        assert np.all(np.isfinite(obs)) and np.isfinite(reward)
+        terms = [v for k, v in info.items() if k.startswith("reward_")]
+        assert reward == pytest.approx(sum(terms), abs=1e-9)
+        assert isinstance(info["is_success"], bool) and info["unstable"] is False
+        if terminated or truncated:
+            env.reset()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_bad_actions_raise_clear_errors(env_id: str) -> None:
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(env.action_space.shape[0] + 1))
+    with pytest.raises(ValueError, match="non-finite"):
+        env.step(np.full(env.action_space.shape, np.nan))
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_instability_ends_episode_with_finite_observation(env_id: str) -> None:
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    env.unwrapped.data.qvel[:] = 1e12  # MuJoCo rejects this state and resets itself
+    obs, reward, terminated, _, info = env.step(np.zeros(env.action_space.shape))
+    assert info["unstable"] is True and terminated
+    assert np.all(np.isfinite(obs)) and np.isfinite(reward)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_docstring_tables_match_spaces(env_id: str) -> None:
+    env = gym.make(env_id)
+    doc = type(env.unwrapped).__doc__
+    obs_section = doc.split("## Observation Space")[1].split("## Rewards")[0]
+    rows = [int(m) for m in re.findall(r"^\s*\|\s*(\d+)\s*\|", obs_section, flags=re.MULTILINE)]
+    assert rows == list(range(env.observation_space.shape[0]))
+    assert f"(-inf, inf, ({env.observation_space.shape[0]},), float64)" in obs_section
+    low, high = env.action_space.low[0], env.action_space.high[0]
+    action_section = doc.split("## Action Space")[1].split("## Observation Space")[0]
+    assert f"Box({low:g}, {high:g}, ({env.action_space.shape[0]},), float32)" in action_section
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(env.action_space.sample())
+    rewards_section = doc.split("## Rewards")[1].split("## Starting State")[0]
+    for term in (k for k in info if k.startswith("reward_")):
+        assert f"`{term}`" in rewards_section, term
+
+
+def test_grasper_thesis_reward_terms_documented() -> None:
+    env = gym.make("Grasper3D-v0", reward_mode="thesis")
+    env.reset(seed=0)
+    _, reward, _, _, info = env.step(env.action_space.sample())
+    doc = type(env.unwrapped).__doc__
+    for term in (k for k in info if k.startswith("reward_")):
+        assert f"`{term}`" in doc, term
+    assert reward == pytest.approx(sum(v for k, v in info.items() if k.startswith("reward_")))
+    with pytest.raises(ValueError, match="reward_mode"):
+        gym.make("Grasper3D-v0", reward_mode="dense")
+
+
+def test_cube_height_is_measured_from_the_geom() -> None:
+    env = gym.make("Grasper3D-v0").unwrapped
+    env.reset(seed=0)
+    assert abs(env.cube_height()) < 2e-3  # resting on the floor
+    assert not env._is_success()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_rgb_render_headless(env_id: str) -> None:
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    env = gym.make(env_id, render_mode="rgb_array", width=160, height=120)
+    env.reset(seed=0)
+    frame = env.render()
+    env.close()
+    assert frame.shape == (120, 160, 3)
+    assert frame.std() > 5.0, "blank frame"
+
+
+def test_registration_visible_in_subprocess_workers() -> None:
+    env = make_vec_env("Grasper3D-v0", n_envs=2, vec_env_cls=SubprocVecEnv, vec_env_kwargs=dict(start_method="forkserver"))
+    try:
+        obs = env.reset()
+        assert obs.shape == (2, 31)
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("env_id", ["Reacher2D-v0", "Reacher3D-v0", "WallReacher3D-v0"])
+def test_scripted_controller_reaches_target(env_id: str) -> None:
+    env = gym.make(env_id)
+    policy = SCRIPTED_POLICIES[env_id]
+    for seed in range(5):
+        env.reset(seed=seed)
+        for _ in range(env.spec.max_episode_steps):
+            _, _, terminated, truncated, info = env.step(policy(env.unwrapped))
+            if terminated or truncated:
+                break
+        assert info["is_success"], f"seed {seed}: distance {info['distance']:.3f}"
+
+
+def test_scripted_controller_grasps_and_lifts_cube() -> None:
+    env = gym.make("Grasper3D-v0")
+    policy = SCRIPTED_POLICIES["Grasper3D-v0"]
+    lifted = 0
+    for seed in range(10):
+        env.reset(seed=seed)
+        success = False
+        for _ in range(env.spec.max_episode_steps):
+            _, _, _, _, info = env.step(policy(env.unwrapped))
+            success = success or info["is_success"]
+        if success:
+            assert info["cube_height"] >= 0.0
+            lifted += 1
+    assert lifted >= 6, f"only {lifted}/10 episodes lifted the cube"
+
+
+def test_grasper_thesis_mode_terminates_on_lift() -> None:
+    env = gym.make("Grasper3D-v0", reward_mode="thesis")
+    policy = SCRIPTED_POLICIES["Grasper3D-v0"]
+    for seed in range(10):
+        env.reset(seed=seed)
+        for _ in range(100):
+            _, _, terminated, _, info = env.step(policy(env.unwrapped))
+            if terminated:
+                assert info["is_success"] and info["reward_lift"] >= 1050.0
+                return
+    pytest.fail("the thesis' lift bonus was never reached")
+
+
+def test_wall_contact_spoils_success() -> None:
+    env = gym.make("WallReacher3D-v0").unwrapped
+    env.reset(seed=0)
+    env._wall_touched = True
+    env.data.mocap_pos[0] = env.data.site("palm").xpos.copy()
+    _, _, _, _, info = env.step(np.zeros(4))
+    assert info["distance"] < 0.02 and not info["is_success"]
