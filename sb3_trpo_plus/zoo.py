@@ -1,0 +1,204 @@
+"""rl-zoo3 integration: validated YAML hyperparameters, algorithm registration, an Optuna sampler."""
+
+from __future__ import annotations
+
+import ast
+import inspect
+import sys
+import types
+from pathlib import Path
+from typing import Any
+
+import yaml
+from gymnasium.envs.registration import registry
+from torch import nn
+
+ZOO_DIR = Path(__file__).resolve().parent.parent / "zoo_hyperparams"
+ALGO_FILES = {"trpo_plus": "trpo_plus.yml", "trpo": "trpo.yml", "ppo": "ppo.yml"}
+
+ACTIVATIONS: dict[str, type[nn.Module]] = {
+    "tanh": nn.Tanh,
+    "relu": nn.ReLU,
+    "elu": nn.ELU,
+    "leaky_relu": nn.LeakyReLU,
+    "gelu": nn.GELU,
+    "silu": nn.SiLU,
+}
+# Keys rl-zoo3 consumes itself (the others go to the algorithm's constructor)
+ZOO_KEYS: dict[str, tuple[type, ...]] = {
+    "n_envs": (int,),
+    "n_timesteps": (int, float),
+    "policy": (str,),
+    "normalize": (bool, str, dict),
+    "normalize_kwargs": (dict,),
+    "env_wrapper": (str, list, dict),
+    "vec_env_wrapper": (str, list, dict),
+    "callback": (str, list, dict),
+    "frame_stack": (int,),
+    "monitor_kwargs": (dict, str),
+    "env_kwargs": (dict,),
+    "policy_kwargs": (dict, str),
+}
+POLICY_KWARGS_KEYS = {"net_arch", "activation_fn", "log_std_init", "ortho_init", "squash_output", "full_std",
+                      "use_expln", "share_features_extractor", "optimizer_kwargs"}  # fmt: skip
+
+
+class HyperparameterError(ValueError):
+    """A hyperparameter file that cannot be used; the message names the file, the env and the key."""
+
+
+def algorithms() -> dict[str, type]:
+    from sb3_contrib import TRPO
+    from stable_baselines3 import PPO
+
+    from sb3_trpo_plus.trpo_plus import TRPOPlus
+
+    return {"trpo_plus": TRPOPlus, "trpo": TRPO, "ppo": PPO}
+
+
+def _constructor_types(algo_class: type) -> dict[str, tuple[type, ...]]:
+    """Accepted types of every constructor argument, from its default value."""
+    accepted: dict[str, tuple[type, ...]] = {}
+    for name, parameter in inspect.signature(algo_class.__init__).parameters.items():
+        if name in {"self", "policy", "env", "_init_setup_model", "kwargs"}:
+            continue
+        default = parameter.default
+        if isinstance(default, bool):
+            accepted[name] = (bool,)
+        elif isinstance(default, int | float):
+            accepted[name] = (int, float, str)  # str: rl-zoo schedules such as "lin_0.3"
+        elif isinstance(default, str):
+            accepted[name] = (str,)
+        else:  # None or objects: several types make sense
+            accepted[name] = (int, float, str, bool, dict, list, type(None))
+    return accepted
+
+
+def parse_policy_kwargs(value: Any, where: str) -> dict[str, Any]:
+    """``policy_kwargs`` as a mapping, or rl-zoo's ``"dict(...)"`` text parsed *without* ``eval``."""
+    if isinstance(value, str):
+        try:
+            tree = ast.parse(value.strip(), mode="eval").body
+        except SyntaxError as error:
+            raise HyperparameterError(f"{where}: policy_kwargs is not valid: {error}") from None
+        if not (isinstance(tree, ast.Call) and isinstance(tree.func, ast.Name) and tree.func.id == "dict" and not tree.args):
+            raise HyperparameterError(f"{where}: policy_kwargs text must be of the form dict(key=value, ...)")
+        mapping: dict[str, Any] = {}
+        for keyword in tree.keywords:
+            node = keyword.value
+            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "nn":
+                mapping[str(keyword.arg)] = node.attr
+            else:
+                try:
+                    mapping[str(keyword.arg)] = ast.literal_eval(node)
+                except ValueError:
+                    raise HyperparameterError(
+                        f"{where}: policy_kwargs value of {keyword.arg!r} must be a literal or nn.<Activation>"
+                    ) from None
+        value = mapping
+    if not isinstance(value, dict):
+        raise HyperparameterError(f"{where}: policy_kwargs must be a mapping, got {type(value).__name__}")
+    result = dict(value)
+    for key in result:
+        if key not in POLICY_KWARGS_KEYS:
+            raise HyperparameterError(f"{where}: unknown policy_kwargs key {key!r} (known: {sorted(POLICY_KWARGS_KEYS)})")
+    activation = result.get("activation_fn")
+    if isinstance(activation, str):
+        name = activation.lower()
+        by_class_name = {cls.__name__.lower(): cls for cls in ACTIVATIONS.values()}
+        if name not in ACTIVATIONS and name not in by_class_name:
+            raise HyperparameterError(f"{where}: unknown activation_fn {activation!r} (known: {sorted(ACTIVATIONS)})")
+        result["activation_fn"] = ACTIVATIONS.get(name) or by_class_name[name]
+    return result
+
+
+def load_hyperparameters(path: str | Path, algo: str, env_ids: list[str] | None = None) -> dict[str, dict[str, Any]]:
+    """Load and validate an rl-zoo YAML file for ``algo``; return ``{env_id: hyperparameters}``.
+
+    Unknown keys, wrong types, unknown env ids and malformed YAML raise :class:`HyperparameterError`
+    naming the file, the env and the key. ``policy_kwargs`` comes back as a dict with activation classes.
+    """
+    path = Path(path)
+    algos = algorithms()
+    if algo not in algos:
+        raise HyperparameterError(f"unknown algorithm {algo!r} (known: {sorted(algos)})")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        raise HyperparameterError(f"{path}: malformed YAML: {error}") from None
+    if not isinstance(data, dict):
+        raise HyperparameterError(f"{path}: expected a mapping of env ids to hyperparameters")
+    import grasp_envs  # noqa: F401  (our ids must be known)
+
+    accepted = {**_constructor_types(algos[algo]), **ZOO_KEYS}
+    result: dict[str, dict[str, Any]] = {}
+    for env_id, params in data.items():
+        if env_ids is not None and env_id not in env_ids:
+            continue
+        if env_id not in registry:
+            raise HyperparameterError(f"{path}: unknown env id {env_id!r}")
+        if not isinstance(params, dict):
+            raise HyperparameterError(f"{path}: {env_id}: expected a mapping of hyperparameters")
+        checked: dict[str, Any] = {}
+        for key, value in params.items():
+            where = f"{path}: {env_id}: {key}"
+            if key not in accepted:
+                raise HyperparameterError(f"{where}: unknown hyperparameter for {algo}")
+            types_ok = accepted[key]
+            if not isinstance(value, types_ok) or (isinstance(value, bool) and bool not in types_ok):
+                names = "/".join(t.__name__ for t in types_ok)
+                raise HyperparameterError(f"{where}: expected {names}, got {type(value).__name__} {value!r}")
+            checked[key] = parse_policy_kwargs(value, f"{path}: {env_id}") if key == "policy_kwargs" else value
+        if "n_timesteps" not in checked or "policy" not in checked:
+            raise HyperparameterError(f"{path}: {env_id}: n_timesteps and policy are required")
+        if env_id in _our_env_ids():
+            # so that the monitor CSV and rollout/success_rate carry the success flag
+            checked.setdefault("monitor_kwargs", {"info_keywords": ("is_success",)})
+            checked.setdefault("callback", "sb3_trpo_plus.callbacks.RewardTermsCallback")
+        result[env_id] = checked
+    return result
+
+
+def _our_env_ids() -> tuple[str, ...]:
+    import grasp_envs
+
+    return grasp_envs.ENV_IDS
+
+
+def config_module(algo: str, path: str | Path | None = None) -> str:
+    """Validate our YAML for ``algo`` and expose it to rl-zoo3 as an importable module; return its name.
+
+    rl-zoo3's ``-conf`` accepts a module with a ``hyperparams`` attribute: this avoids writing files and
+    makes rl-zoo3 use exactly the validated values.
+    """
+    path = Path(path) if path is not None else ZOO_DIR / ALGO_FILES[algo]
+    name = f"_sb3_trpo_plus_hyperparams_{algo}"
+    module = types.ModuleType(name)
+    module.hyperparams = load_hyperparameters(path, algo)  # type: ignore[attr-defined]
+    sys.modules[name] = module
+    return name
+
+
+def sample_trpo_plus_params(trial: Any, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
+    """Optuna sampler: rl-zoo3's TRPO search space plus TRPOPlus' own hyperparameters."""
+    from rl_zoo3.hyperparams_opt import sample_trpo_params
+
+    params = sample_trpo_params(trial, n_actions, n_envs, additional_args)
+    params["replay_memory"] = trial.suggest_int("replay_memory", 0, 5)
+    params["cg_warm_start"] = trial.suggest_categorical("cg_warm_start", [False, True])
+    params["cg_damping"] = trial.suggest_float("cg_damping", 0.01, 0.5, log=True)
+    params["value_baseline"] = trial.suggest_categorical("value_baseline", ["critic", "linear"])
+    return params
+
+
+def register_in_rl_zoo() -> None:
+    """Add TRPOPlus to rl-zoo3's algorithm and Optuna-sampler tables (idempotent)."""
+    from rl_zoo3 import utils as zoo_utils
+    from rl_zoo3.hyperparams_opt import HYPERPARAMS_CONVERTER, HYPERPARAMS_SAMPLER
+
+    from sb3_trpo_plus.trpo_plus import TRPOPlus
+
+    zoo_utils.ALGOS["trpo_plus"] = TRPOPlus
+    HYPERPARAMS_SAMPLER["trpo_plus"] = sample_trpo_plus_params
+    if "trpo" in HYPERPARAMS_CONVERTER:
+        HYPERPARAMS_CONVERTER["trpo_plus"] = HYPERPARAMS_CONVERTER["trpo"]
