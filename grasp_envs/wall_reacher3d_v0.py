@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D
 from grasp_envs.reacher3d_v0 import FLOOR_Z, TARGET_HALF_SIZE, Reacher3DEnv
 
-WALL_CAMERA_CONFIG: dict[str, Any] = {**DEFAULT_CAMERA_CONFIG_3D, "azimuth": 110.0, "elevation": -25.0}
+WALL_CAMERA_CONFIG: dict[str, Any] = {**DEFAULT_CAMERA_CONFIG_3D, "azimuth": 90.0, "elevation": -60.0}
 ARM_GEOMS = ["upper_arm", "forearm"]
 
 

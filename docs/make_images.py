@@ -1,0 +1,38 @@
+"""Render one PNG per environment for docs/environments.md (run: python docs/make_images.py).
+
+Each image shows the state after a few steps of the scripted controller from a seeded reset.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+from PIL import Image  # noqa: E402
+
+import grasp_envs  # noqa: E402
+from grasp_envs.scripted import SCRIPTED_POLICIES  # noqa: E402
+
+STEPS = {"Reacher2D-v0": 10, "Reacher3D-v0": 20, "Grasper3D-v0": 45, "WallReacher3D-v0": 25}
+
+
+def main() -> None:
+    out = Path(__file__).parent / "images"
+    out.mkdir(exist_ok=True)
+    for env_id in grasp_envs.ENV_IDS:
+        env = gym.make(env_id, render_mode="rgb_array", width=480, height=360)
+        env.reset(seed=2)
+        for _ in range(STEPS[env_id]):
+            env.step(SCRIPTED_POLICIES[env_id](env.unwrapped))
+        frame = np.asarray(env.render())
+        Image.fromarray(frame).save(out / f"{env_id}.png")
+        env.close()
+        print(f"wrote {out / f'{env_id}.png'}")
+
+
+if __name__ == "__main__":
+    main()
