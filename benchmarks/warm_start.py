@@ -83,14 +83,19 @@ def main() -> None:
             path.write_text(json.dumps(result, indent=1))
             print(json.dumps(result), flush=True)
     rows = [json.loads(p.read_text()) for p in sorted(out.glob(f"{args.env}_*_{args.steps}_cg{args.cg_max_steps}.json"))]
-    print(f"\n| variant | runs | eval return | CG residual | warm-start cosine | line-search success |")
+    print("\n| variant | runs | eval return | CG residual | warm-start cosine | line-search success |")
     print("|---|---|---|---|---|---|")
     for variant in VARIANTS:
         group = [r for r in rows if r["variant"] == variant]
         if group:
-            stat = lambda k: f"{np.mean([r[k] for r in group]):.4g} ± {np.std([r[k] for r in group]):.2g}"  # noqa: E731
-            print(f"| {variant} | {len(group)} | {stat('eval_return')} | {stat('mean_cg_residual')} | "
-                  f"{stat('mean_cg_warm_start_cosine')} | {stat('mean_is_line_search_success')} |")  # fmt: skip
+            cells = [_stat(group, k) for k in ("eval_return", "mean_cg_residual", "mean_cg_warm_start_cosine",
+                                               "mean_is_line_search_success")]  # fmt: skip
+            print(f"| {variant} | {len(group)} | " + " | ".join(cells) + " |")
+
+
+def _stat(group: list[dict], key: str) -> str:
+    values = [r[key] for r in group]
+    return f"{np.mean(values):.4g} ± {np.std(values):.2g}"
 
 
 if __name__ == "__main__":

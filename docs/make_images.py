@@ -10,12 +10,12 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import gymnasium as gym  # noqa: E402
-import numpy as np  # noqa: E402
-from PIL import Image  # noqa: E402
+import gymnasium as gym
+import numpy as np
+from PIL import Image
 
-import grasp_envs  # noqa: E402
-from grasp_envs.scripted import SCRIPTED_POLICIES  # noqa: E402
+import grasp_envs
+from grasp_envs.scripted import SCRIPTED_POLICIES
 
 STEPS = {"Reacher2D-v0": 10, "Reacher3D-v0": 20, "Grasper3D-v0": 45, "WallReacher3D-v0": 25}
 

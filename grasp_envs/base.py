@@ -21,12 +21,14 @@ DEFAULT_CAMERA_CONFIG_3D: dict[str, Any] = {
     "lookat": np.array([0.0, 0.0, -0.12]),
 }
 
-# MuJoCo resets mjData itself (and counts a warning) when positions, velocities or accelerations blow up
-_INSTABILITY_WARNINGS = (
-    mujoco.mjtWarning.mjWARN_BADQPOS,
-    mujoco.mjtWarning.mjWARN_BADQVEL,
-    mujoco.mjtWarning.mjWARN_BADQACC,
-    mujoco.mjtWarning.mjWARN_BADCTRL,
+_INSTABILITY_WARNINGS = np.array(
+    [
+        mujoco.mjtWarning.mjWARN_BADQPOS,
+        mujoco.mjtWarning.mjWARN_BADQVEL,
+        mujoco.mjtWarning.mjWARN_BADQACC,
+        mujoco.mjtWarning.mjWARN_BADCTRL,
+    ],
+    dtype=np.int64,
 )
 
 
@@ -74,8 +76,11 @@ class ArmEnv(MujocoEnv, utils.EzPickle):
     def geom_id(self, name: str) -> int:
         return int(self.model.geom(name).id)
 
-    def geom_ids(self, names: list[str]) -> NDArray[np.int64]:
-        return np.array([self.geom_id(n) for n in names], dtype=np.int64)
+    def geom_mask(self, names: list[str]) -> NDArray[np.bool_]:
+        """Boolean mask over all geom ids, true for the named geoms (contact tests index it directly)."""
+        mask = np.zeros(self.model.ngeom, dtype=bool)
+        mask[[self.geom_id(n) for n in names]] = True
+        return mask
 
     def site_pos(self, name: str) -> NDArray[np.float64]:
         return self.data.site(name).xpos
@@ -85,11 +90,17 @@ class ArmEnv(MujocoEnv, utils.EzPickle):
         return self.data.contact.geom[: self.data.ncon]
 
     @staticmethod
-    def touching(pairs: NDArray[np.int32], group_a: NDArray[np.int64], group_b: NDArray[np.int64]) -> NDArray[np.bool_]:
-        """For each contact, whether it joins a geom of ``group_a`` with a geom of ``group_b``."""
-        a0, a1 = np.isin(pairs[:, 0], group_a), np.isin(pairs[:, 1], group_a)
-        b0, b1 = np.isin(pairs[:, 0], group_b), np.isin(pairs[:, 1], group_b)
-        return (a0 & b1) | (a1 & b0)
+    def touching(pairs: NDArray[np.int32], mask_a: NDArray[np.bool_], mask_b: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """For each contact, whether it joins a geom of ``mask_a`` with a geom of ``mask_b``."""
+        first, second = pairs[:, 0], pairs[:, 1]
+        return (mask_a[first] & mask_b[second]) | (mask_a[second] & mask_b[first])
+
+    @staticmethod
+    def touching_geoms(pairs: NDArray[np.int32], mask_a: NDArray[np.bool_], mask_b: NDArray[np.bool_]) -> int:
+        """Number of distinct geoms of ``mask_a`` in contact with any geom of ``mask_b``."""
+        hits = np.zeros(len(mask_a), dtype=bool)
+        hits[pairs[ArmEnv.touching(pairs, mask_a, mask_b)].ravel()] = True
+        return int((hits & mask_a).sum())
 
     # ------------------------------------------------------------------ stepping
     def _checked_action(self, action: Any) -> NDArray[np.float64]:
@@ -108,12 +119,15 @@ class ArmEnv(MujocoEnv, utils.EzPickle):
         mujoco.mj_step(self.model, self.data, nstep=n_frames)
 
     def _simulate(self, action: NDArray[np.float64]) -> bool:
-        """Run ``frame_skip`` physics steps; return whether the simulation became unstable."""
-        warnings_before = sum(int(self.data.warning[w].number) for w in _INSTABILITY_WARNINGS)
+        """Run ``frame_skip`` physics steps; return whether the simulation became unstable.
+
+        MuJoCo itself resets ``mjData`` and counts a warning when positions, velocities, accelerations
+        or controls become non-finite or huge: one vectorised read of the warning counters tells.
+        """
+        warnings_before = int(self.data.warning.number[_INSTABILITY_WARNINGS].sum())
         self.do_simulation(action, self.frame_skip)
-        warnings_after = sum(int(self.data.warning[w].number) for w in _INSTABILITY_WARNINGS)
-        state_ok = np.isfinite(self.data.qpos).all() and np.isfinite(self.data.qvel).all()
-        return warnings_after > warnings_before or not state_ok
+        warnings_after = int(self.data.warning.number[_INSTABILITY_WARNINGS].sum())
+        return warnings_after > warnings_before or not np.isfinite(self.data.qvel).all()
 
     def step(self, action: Any) -> tuple[NDArray[np.float64], float, bool, bool, dict[str, Any]]:  # type: ignore[override]
         action = self._checked_action(action)

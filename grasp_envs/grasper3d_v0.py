@@ -161,15 +161,13 @@ class Grasper3DEnv(ArmEnv):
         self._reset_noise_scale = reset_noise_scale
         self._lift_height = lift_height
         self._lift_bonus_paid = False
+        self._contacts = {"right": 0, "left": 0, "floor": 0, "claw_claw": 0}
         ArmEnv.__init__(self, xml_file, frame_skip, default_camera_config, observation_dim=31, **kwargs)
 
-        self._claw_geoms = {side: self.geom_ids([f"claw_{side}_{part}" for part in CLAW_PARTS]) for side in CLAW_SIDES}
-        self._all_claw_geoms = np.concatenate(list(self._claw_geoms.values()))
-        self._bottom_claw_geoms = self.geom_ids(
-            [f"claw_{side}_{p}" for side in CLAW_SIDES for p in CLAW_PARTS if "bottom" in p]
-        )
-        self._cube_geom = self.geom_ids(["cube"])
-        self._floor_geom = self.geom_ids(["floor"])
+        self._claw_geoms = {side: self.geom_mask([f"claw_{side}_{part}" for part in CLAW_PARTS]) for side in CLAW_SIDES}
+        self._bottom_claw_geoms = self.geom_mask([f"claw_{s}_{p}" for s in CLAW_SIDES for p in CLAW_PARTS if "bottom" in p])
+        self._cube_geom = self.geom_mask(["cube"])
+        self._floor_geom = self.geom_mask(["floor"])
         self._arm_qpos = np.array([self.model.joint(j).qposadr[0] for j in ARM_JOINTS])
         self._arm_qvel = np.array([self.model.joint(j).dofadr[0] for j in ARM_JOINTS])
         self._claw_qpos = int(self.model.joint("claw_right").qposadr[0])
@@ -189,15 +187,12 @@ class Grasper3DEnv(ArmEnv):
     def claw_cube_contacts(self) -> dict[str, int]:
         """Number of capsules of each claw half touching the cube."""
         pairs = self.contact_pairs()
-        counts = {}
-        for side in CLAW_SIDES:
-            touching = self.touching(pairs, self._claw_geoms[side], self._cube_geom)
-            counts[side] = len(np.unique(pairs[touching].ravel())) - int(touching.any())  # distinct capsules
-        return counts
+        return {side: self.touching_geoms(pairs, self._claw_geoms[side], self._cube_geom) for side in CLAW_SIDES}
 
     def _contact_summary(self) -> dict[str, int]:
+        """All contact counts the reward, observation and success need, from one read of the contacts."""
         pairs = self.contact_pairs()
-        summary = self.claw_cube_contacts()
+        summary = {side: self.touching_geoms(pairs, self._claw_geoms[side], self._cube_geom) for side in CLAW_SIDES}
         summary["floor"] = int(self.touching(pairs, self._bottom_claw_geoms, self._floor_geom).sum())
         summary["claw_claw"] = min(int(self.touching(pairs, self._claw_geoms["right"], self._claw_geoms["left"]).sum()), 2)
         return summary
@@ -206,11 +201,11 @@ class Grasper3DEnv(ArmEnv):
         return contacts["right"] > 0 and contacts["left"] > 0
 
     def _is_success(self) -> bool:
-        return self.cube_height() >= self._lift_height and self._is_grasped(self.claw_cube_contacts())
+        return self.cube_height() >= self._lift_height and self._is_grasped(self._contacts)
 
     # ------------------------------------------------------------------ reward
     def _get_rew(self, action: NDArray[np.float64]) -> tuple[float, dict[str, Any]]:
-        contacts = self._contact_summary()
+        contacts = self._contacts
         height = self.cube_height()
         ctrl = -self._reward_control_weight * float(np.square(action).sum())
         cube = self.cube_pos()
@@ -256,7 +251,8 @@ class Grasper3DEnv(ArmEnv):
         qpos, qvel = self.data.qpos, self.data.qvel
         angles = qpos[self._arm_qpos]
         cube = self.cube_pos()
-        contacts = self.claw_cube_contacts()
+        # the observation is computed first after every physics change (step and reset): read contacts once here
+        self._contacts = contacts = self._contact_summary()
         return np.concatenate(
             [
                 np.cos(angles),

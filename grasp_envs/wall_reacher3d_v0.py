@@ -119,8 +119,8 @@ class WallReacher3DEnv(Reacher3DEnv):
         super(Reacher3DEnv, self).__init__(
             xml_file, frame_skip, default_camera_config, observation_dim=self._observation_dim, **kwargs
         )
-        self._wall_geom = self.geom_ids(["wall"])
-        self._arm_geoms = self.geom_ids(ARM_GEOMS)
+        self._wall_geom = self.geom_mask(["wall"])
+        self._arm_geoms = self.geom_mask(ARM_GEOMS)
 
     def wall_contacts(self) -> int:
         return int(self.touching(self.contact_pairs(), self._arm_geoms, self._wall_geom).sum())

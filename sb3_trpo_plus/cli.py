@@ -147,7 +147,7 @@ def record_video(argv: Sequence[str]) -> list[Path]:
         obs, _, _, _ = env.step(action)
     env.close()
     output = Path(args.output) if args.output else Path(log_path) / "videos" / f"{args.env}.mp4"
-    return write_video(frames, output, fps=int(round(1.0 / env.get_attr("dt")[0])), gif=args.gif)
+    return write_video(frames, output, fps=round(1.0 / env.get_attr("dt")[0]), gif=args.gif)
 
 
 def write_video(frames: list[np.ndarray], output: Path, fps: int, gif: bool = False) -> list[Path]:
@@ -199,12 +199,13 @@ def plot(argv: Sequence[str]) -> Path:
 
 def evaluate(model: Any, env: Any, n_episodes: int) -> dict[str, Any]:
     """Deterministic evaluation: mean / std return (original rewards) and success rate over ``n_episodes``."""
-    returns, successes = [], []
+    returns: list[float] = []
+    successes: list[float] = []
     obs = env.reset()
     episode_return = 0.0
     while len(returns) < n_episodes:
         action, _ = model.predict(obs, deterministic=True)
-        obs, reward, done, info = env.step(action)
+        obs, _, done, info = env.step(action)
         episode_return += float(info[0].get("episode", {}).get("r", 0.0)) if done[0] else 0.0
         if done[0]:
             returns.append(episode_return)
@@ -246,7 +247,12 @@ def main_job(argv: Sequence[str]) -> dict[str, Any]:
     curve = plot(["--env", args.env, "--runs", f"{args.algo}={log_path}", "-o", str(Path(log_path) / "learning_curve.png")])
     video = record_video(["--env", args.env, "--algo", args.algo, "-f", str(logs), "-o", str(Path(log_path) / "trained.mp4")])
     summary.update(
-        {"evaluation": str(summary_path), "learning_curve": str(curve), "video": str(video[0]), "tensorboard": str(out / "tensorboard")}
+        {
+            "evaluation": str(summary_path),
+            "learning_curve": str(curve),
+            "video": str(video[0]),
+            "tensorboard": str(out / "tensorboard"),
+        }
     )
     print("\n== trpo-plus main: result ==")
     for key, value in summary.items():

@@ -40,7 +40,8 @@ def learning_curve_figure(groups: dict[str, list[Path]], title: str, output: Pat
         window = max(1, min(len(run[0]) for run in runs) // 20)
         panels = [(0, 1)] + ([(1, 2)] if has_success else [])
         for axis_index, column in panels:
-            series = [_on_grid(run[0], run[column], grid, window) for run in runs if run[column] is not None]
+            columns = [(run[0], run[column]) for run in runs]
+            series = [_on_grid(t, values, grid, window) for t, values in columns if values is not None]
             if not series:
                 continue
             mean, std = np.mean(series, axis=0), np.std(series, axis=0)

@@ -59,7 +59,7 @@ def algorithms() -> dict[str, type]:
 def _constructor_types(algo_class: type) -> dict[str, tuple[type, ...]]:
     """Accepted types of every constructor argument, from its default value."""
     accepted: dict[str, tuple[type, ...]] = {}
-    for name, parameter in inspect.signature(algo_class.__init__).parameters.items():
+    for name, parameter in inspect.signature(algo_class).parameters.items():
         if name in {"self", "policy", "env", "_init_setup_model", "kwargs"}:
             continue
         default = parameter.default
