@@ -86,6 +86,7 @@ def validate_hyperparameters(
     n_critic_updates: int,
     target_kl: float,
     sub_sampling_factor: int,
+    fisher_sub_sampling: int,
     replay_memory: int,
     replay_is_clip: float | None,
     value_baseline: str,
@@ -111,6 +112,7 @@ def validate_hyperparameters(
         ("cg_max_steps", cg_max_steps),
         ("line_search_max_iter", line_search_max_iter),
         ("sub_sampling_factor", sub_sampling_factor),
+        ("fisher_sub_sampling", fisher_sub_sampling),
     ):
         need(is_int(value) and value >= 1, name, value, "an integer >= 1")
     need(is_int(n_critic_updates) and n_critic_updates >= 0, "n_critic_updates", n_critic_updates, "an integer >= 0")
@@ -176,6 +178,9 @@ class TRPOPlus(TRPO):
     :param normalize_advantage: Normalise advantages over the update batch (current + replayed samples)
     :param target_kl: Trust-region radius ``delta``: maximum mean KL between successive policies (thesis: 0.01)
     :param sub_sampling_factor: Use every n-th sample of the update batch for the policy step (Schulman's thesis p.40)
+    :param fisher_sub_sampling: Estimate the Fisher matrix (the CG products) on every n-th sample of the update
+        batch only (1: all samples). The gradient, KL and line search still use every sample. With a replay
+        memory of ``k`` rollouts, ``k + 1`` keeps the cost of the products at that of plain TRPO.
     :param replay_memory: ``k``, the number of *past* rollouts reused by every policy update
         (thesis 5.3.1 used k=3). Each update recomputes their values, GAE advantages and returns with the
         current value function and weights them by ``pi_theta / q`` where ``q`` sampled them.
@@ -222,6 +227,7 @@ class TRPOPlus(TRPO):
         normalize_advantage: bool = True,
         target_kl: float = 0.01,
         sub_sampling_factor: int = 1,
+        fisher_sub_sampling: int = 1,
         replay_memory: int = 0,
         replay_is_clip: float | None = None,
         replay_critic: bool = False,
@@ -242,8 +248,8 @@ class TRPOPlus(TRPO):
             gae_lambda=gae_lambda, cg_max_steps=cg_max_steps, cg_damping=cg_damping,
             line_search_shrinking_factor=line_search_shrinking_factor, line_search_max_iter=line_search_max_iter,
             n_critic_updates=n_critic_updates, target_kl=target_kl, sub_sampling_factor=sub_sampling_factor,
-            replay_memory=replay_memory, replay_is_clip=replay_is_clip, value_baseline=value_baseline,
-            linear_baseline_l2=linear_baseline_l2,
+            fisher_sub_sampling=fisher_sub_sampling, replay_memory=replay_memory, replay_is_clip=replay_is_clip,
+            value_baseline=value_baseline, linear_baseline_l2=linear_baseline_l2,
         )  # fmt: skip
         if isinstance(env, str):
             import grasp_envs  # noqa: F401  (registers our ids so that a bare id string works)
@@ -262,6 +268,7 @@ class TRPOPlus(TRPO):
             tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose, seed=seed,
             device=device, _init_setup_model=False,
         )  # fmt: skip
+        self.fisher_sub_sampling = int(fisher_sub_sampling)
         self.replay_memory = int(replay_memory)
         self.replay_is_clip = replay_is_clip
         self.replay_critic = bool(replay_critic)
@@ -525,8 +532,11 @@ class TRPOPlus(TRPO):
         distribution = self.policy.get_distribution(batch.observations)
         log_prob = distribution.log_prob(actions)
         objective = (advantages * th.exp(log_prob - batch.sampling_log_prob)).mean()
-        gradient = flat_gradient(objective, self._actor_params, retain_graph=True)
-        fvp = fisher_vector_product(distribution, self._actor_params, damping=self.cg_damping)
+        gradient = flat_gradient(objective, self._actor_params, retain_graph=self.fisher_sub_sampling == 1)
+        fisher_distribution = distribution
+        if self.fisher_sub_sampling > 1:
+            fisher_distribution = self.policy.get_distribution(batch.observations[:: self.fisher_sub_sampling])
+        fvp = fisher_vector_product(fisher_distribution, self._actor_params, damping=self.cg_damping)
 
         warm_start = self._warm_start(gradient)
         cg = conjugate_gradient(
@@ -574,21 +584,21 @@ class TRPOPlus(TRPO):
             return self._fit_linear_baseline(), 0
         value_losses = []
         skipped = 0
-        actor_ids = {id(p) for p in self._actor_params}
         for _ in range(self.n_critic_updates):
             for observations, returns in self._critic_minibatches():
                 values_pred = self.policy.predict_values(observations)
                 value_loss = F.mse_loss(returns, values_pred.flatten())
+                loss = value_loss.item()
+                if not math.isfinite(loss):
+                    # finite inputs and weights give finite gradients: a non-finite loss is the one way in
+                    skipped += 1
+                    continue
                 self.policy.optimizer.zero_grad()
                 value_loss.backward()
                 # Actor parameters are moved by the trust-region step only
                 for param in self._actor_params:
                     param.grad = None
-                grads = [p.grad for p in self.policy.parameters() if p.grad is not None and id(p) not in actor_ids]
-                if not all(bool(th.isfinite(g).all()) for g in grads):
-                    skipped += 1
-                    continue
-                value_losses.append(value_loss.item())
+                value_losses.append(loss)
                 self.policy.optimizer.step()
         return (float(np.mean(value_losses)) if value_losses else math.nan), skipped
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ast
 import inspect
+import re
 import sys
 import types
 from pathlib import Path
@@ -39,6 +40,8 @@ ZOO_KEYS: dict[str, tuple[type, ...]] = {
     "env_kwargs": (dict,),
     "policy_kwargs": (dict, str),
 }
+SCHEDULE_KEYS = {"learning_rate", "clip_range", "clip_range_vf"}  # may be rl-zoo schedules such as "lin_3e-4"
+SCHEDULE_PATTERN = re.compile(r"^lin_[0-9.eE+-]+$")
 POLICY_KWARGS_KEYS = {"net_arch", "activation_fn", "log_std_init", "ortho_init", "squash_output", "full_std",
                       "use_expln", "share_features_extractor", "optimizer_kwargs"}  # fmt: skip
 
@@ -66,7 +69,7 @@ def _constructor_types(algo_class: type) -> dict[str, tuple[type, ...]]:
         if isinstance(default, bool):
             accepted[name] = (bool,)
         elif isinstance(default, int | float):
-            accepted[name] = (int, float, str)  # str: rl-zoo schedules such as "lin_0.3"
+            accepted[name] = (int, float, str) if name in SCHEDULE_KEYS else (int, float)
         elif isinstance(default, str):
             accepted[name] = (str,)
         else:  # None or objects: several types make sense
@@ -148,6 +151,8 @@ def load_hyperparameters(path: str | Path, algo: str, env_ids: list[str] | None 
             if not isinstance(value, types_ok) or (isinstance(value, bool) and bool not in types_ok):
                 names = "/".join(t.__name__ for t in types_ok)
                 raise HyperparameterError(f"{where}: expected {names}, got {type(value).__name__} {value!r}")
+            if key in SCHEDULE_KEYS and isinstance(value, str) and not SCHEDULE_PATTERN.match(value):
+                raise HyperparameterError(f"{where}: expected a number or a schedule 'lin_<value>', got {value!r}")
             checked[key] = parse_policy_kwargs(value, f"{path}: {env_id}") if key == "policy_kwargs" else value
         if "n_timesteps" not in checked or "policy" not in checked:
             raise HyperparameterError(f"{path}: {env_id}: n_timesteps and policy are required")

@@ -208,3 +208,24 @@ def test_line_search_rejects_nonfinite_objective() -> None:
     result = backtracking_line_search([theta], th.tensor([0.5, 0.5]), evaluate(broken=True), -2.0, 1.0, 0.5, 3)
     assert not result.accepted and result.nonfinite
     assert th.equal(theta.detach(), before)
+
+
+def test_fisher_sub_sampling_error_is_bounded() -> None:
+    """The Fisher estimated on every 4th state of a large batch stays close to the full one."""
+    th.manual_seed(3)
+    policy = ActorCriticPolicy(spaces.Box(-1, 1, (4,)), spaces.Box(-1, 1, (2,)), lambda _: 1e-3, net_arch=[16])
+    obs = th.randn(4096, 4)
+    params = actor_parameters(policy)
+    full = fisher_vector_product(policy.get_distribution(obs), params)
+    sub = fisher_vector_product(policy.get_distribution(obs[::4]), params)
+    for seed in range(5):
+        v = th.randn(sum(p.numel() for p in params), generator=th.Generator().manual_seed(seed))
+        exact, approx = full(v), sub(v)
+        relative = float(th.linalg.vector_norm(approx - exact) / th.linalg.vector_norm(exact))
+        assert relative < 0.1, relative
+    # and the natural-gradient direction it gives is nearly the same
+    g = th.randn(sum(p.numel() for p in params), generator=th.Generator().manual_seed(9))
+    x_full = conjugate_gradient(lambda v: full(v) + 0.1 * v, g, max_iter=20).solution
+    x_sub = conjugate_gradient(lambda v: sub(v) + 0.1 * v, g, max_iter=20).solution
+    cosine = float(x_full @ x_sub / (th.linalg.vector_norm(x_full) * th.linalg.vector_norm(x_sub)))
+    assert cosine > 0.98, cosine

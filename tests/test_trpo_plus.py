@@ -43,6 +43,7 @@ def _params(model: TRPOPlus) -> dict[str, np.ndarray]:
         ("n_steps", 0),
         ("batch_size", 0),
         ("sub_sampling_factor", 0),
+        ("fisher_sub_sampling", 0),
         ("n_critic_updates", -1),
         ("learning_rate", -1e-3),
         ("linear_baseline_l2", -2.0),

@@ -1,0 +1,124 @@
+"""Rollout-collection throughput with DummyVecEnv and SubprocVecEnv at 1, 2, 4, 8, 16 envs.
+
+    python benchmarks/scaling.py [--envs Grasper3D-v0 Reacher2D-v0] [--samples 8192] [--repeats 3]
+
+Times TRPOPlus' ``collect_rollouts`` (policy inference, env stepping, buffer, callbacks) for ``--samples``
+env steps; prints env steps/s, the speed-up over one env in one process, and the ratio of the
+per-step collection time to the raw ``env.step`` time. Writes a plot like the thesis' Figures
+5.14-5.16 and the raw numbers to benchmarks/results/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch as th
+from stable_baselines3.common.callbacks import CallbackList
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+import grasp_envs  # noqa: F401
+from sb3_trpo_plus import TRPOPlus
+
+COUNTS = (1, 2, 4, 8, 16)
+
+
+def raw_env_step_time(env_id: str, steps: int = 5000) -> float:
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).uniform(env.action_space.low, env.action_space.high, (steps, *env.action_space.shape))
+    start = time.perf_counter()
+    for action in actions:
+        _, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            env.reset()
+    return (time.perf_counter() - start) / steps
+
+
+def collection_rate(env_id: str, vec_env_cls: type, n_envs: int, samples: int, repeats: int) -> list[float]:
+    kwargs = {"start_method": "forkserver"} if vec_env_cls is SubprocVecEnv else None
+    env = make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=vec_env_cls, vec_env_kwargs=kwargs)
+    n_steps = max(samples // n_envs, 1)
+    model = TRPOPlus("MlpPolicy", env, n_steps=n_steps, batch_size=n_steps * n_envs, seed=0,
+                     policy_kwargs=dict(net_arch=[100, 100]), device="cpu")  # fmt: skip
+    model._setup_learn(10**9, None)
+    callback = CallbackList([])
+    callback.init_callback(model)
+    rates = []
+    for _ in range(repeats + 1):
+        start = time.perf_counter()
+        model.collect_rollouts(model.env, callback, model.rollout_buffer, n_steps)
+        rates.append(n_steps * n_envs / (time.perf_counter() - start))
+    env.close()
+    return rates[1:]  # first repeat is warm-up
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--envs", nargs="+", default=["Grasper3D-v0", "Reacher2D-v0"])
+    parser.add_argument("--samples", type=int, default=8192)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--out", default="benchmarks/results")
+    args = parser.parse_args()
+    th.set_num_threads(1)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    results: dict = {"machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+                                 "python": platform.python_version(), "torch": th.__version__},
+                     "samples": args.samples, "repeats": args.repeats, "envs": {}}  # fmt: skip
+    for env_id in args.envs:
+        raw = raw_env_step_time(env_id)
+        rows = {}
+        for cls in (DummyVecEnv, SubprocVecEnv):
+            for n in COUNTS:
+                rates = collection_rate(env_id, cls, n, args.samples, args.repeats)
+                rows[f"{cls.__name__}-{n}"] = {"vec_env": cls.__name__, "n_envs": n, "steps_per_s": float(np.median(rates)),
+                                               "all": rates}  # fmt: skip
+        base = rows["DummyVecEnv-1"]["steps_per_s"]
+        print(f"\n## {env_id} (raw env.step {raw * 1e6:.0f} µs = {1 / raw:,.0f} steps/s in one process)")
+        print("| vec env | n_envs | env steps/s | speed-up vs 1 env | collection time / raw env.step |")
+        print("|---|---|---|---|---|")
+        for row in rows.values():
+            row["speedup"] = row["steps_per_s"] / base
+            row["ratio_to_raw_env_step"] = (1 / row["steps_per_s"]) / raw
+            print(f"| {row['vec_env']} | {row['n_envs']} | {row['steps_per_s']:,.0f} | {row['speedup']:.2f} | "
+                  f"{row['ratio_to_raw_env_step']:.2f} |")  # fmt: skip
+        results["envs"][env_id] = {"raw_env_step_s": raw, "rows": rows}
+    (out / "scaling.json").write_text(json.dumps(results, indent=1))
+    plot(results, out / "scaling.png")
+    print(f"\nraw results: {out / 'scaling.json'}, plot: {out / 'scaling.png'}")
+
+
+def plot(results: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    envs = results["envs"]
+    fig, axes = plt.subplots(1, len(envs), figsize=(5.5 * len(envs), 4), squeeze=False)
+    for ax, (env_id, data) in zip(axes[0], envs.items(), strict=True):
+        for cls in ("DummyVecEnv", "SubprocVecEnv"):
+            rows = [r for r in data["rows"].values() if r["vec_env"] == cls]
+            ax.plot([r["n_envs"] for r in rows], [r["steps_per_s"] for r in rows], marker="o", label=cls)
+        ax.axhline(1 / data["raw_env_step_s"], color="grey", linestyle="--", label="raw env.step, 1 process")
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("environments")
+        ax.set_ylabel("rollout env steps / s")
+        ax.set_title(f"{env_id} ({results['machine']['cores']} cores)")
+        ax.grid(alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,232 @@
+"""Per-iteration time of TRPOPlus against sb3-contrib TRPO, split by phase, in one process.
+
+    python benchmarks/speed.py [--envs Reacher2D-v0 Grasper3D-v0 Hopper-v5] [--n-envs 8] [--n-steps 256]
+                               [--repeats 7] [--out benchmarks/results/speed.json]
+
+Contenders (identical hyperparameters, n_envs and network): sb3-contrib TRPO, TRPOPlus with replay off,
+TRPOPlus with replay_memory=3. Each contender trains one warm-up iteration, then the repeats are
+interleaved (contender A, B, C, A, B, C, ...). Phases: rollout collection, advantage / replay
+recomputation, policy update (gradient, CG with its Fisher products, line search), critic update.
+"Simulation share" = time of raw mj_step calls for the iteration's physics steps / iteration time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import sb3_contrib
+import stable_baselines3
+import torch as th
+from sb3_contrib import TRPO
+from stable_baselines3.common.env_util import make_vec_env
+from torch import nn
+
+import grasp_envs  # noqa: F401
+from sb3_trpo_plus import TRPOPlus
+
+PHASES = ("rollout", "recompute", "policy", "critic")
+
+
+class PhaseTimer:
+    """Wraps a model's methods to time each phase of one iteration."""
+
+    def __init__(self, model: Any):
+        self.model = model
+        self.times: dict[str, float] = defaultdict(float)
+        self.fvp = 0
+        self._wrap("collect_rollouts", "rollout")
+        if isinstance(model, TRPOPlus):
+            self._wrap("_write_linear_baseline_advantages", "recompute")
+            self._wrap("_policy_batch", "recompute")
+            self._wrap("_update_policy", "policy")
+            self._wrap("_update_value_baseline", "critic")
+        else:
+            self._wrap_trpo_train()
+            original_hvp = model.hessian_vector_product
+
+            def counted(*args: Any, **kwargs: Any) -> th.Tensor:
+                self.fvp += 1
+                return original_hvp(*args, **kwargs)
+
+            model.hessian_vector_product = counted
+
+    def _wrap(self, name: str, phase: str) -> None:
+        original = getattr(self.model, name)
+
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            start = time.perf_counter()
+            try:
+                return original(*args, **kwargs)
+            finally:
+                self.times[phase] += time.perf_counter() - start
+
+        setattr(self.model, name, timed)
+
+    def _wrap_trpo_train(self) -> None:
+        """sb3-contrib's train(): policy part until the first critic minibatch is requested, critic after."""
+        model, original_train = self.model, self.model.train
+
+        def timed_train() -> None:
+            buffer = model.rollout_buffer
+            original_get = buffer.get
+            marks: dict[str, float] = {}
+
+            def get(batch_size: int | None = None):  # type: ignore[no-untyped-def]
+                if batch_size is not None and "critic" not in marks:
+                    marks["critic"] = time.perf_counter()
+                return original_get(batch_size)
+
+            buffer.get = get
+            start = time.perf_counter()
+            try:
+                original_train()
+            finally:
+                end = time.perf_counter()
+                buffer.get = original_get
+                critic_start = marks.get("critic", end)
+                self.times["policy"] += critic_start - start
+                self.times["critic"] += end - critic_start
+
+        model.train = timed_train
+
+    def fisher_products(self) -> int:
+        if isinstance(self.model, TRPOPlus):
+            return int(self.model.logger.name_to_value["train/fisher_vector_products"])
+        return self.fvp
+
+    def reset(self) -> None:
+        self.times.clear()
+        self.fvp = 0
+
+
+def raw_mujoco_time(env_id: str, physics_steps: int, frame_skip: int) -> float:
+    unwrapped = gym.make(env_id).unwrapped
+    unwrapped.reset(seed=0)
+    model, data = unwrapped.model, unwrapped.data
+    low, high = model.actuator_ctrlrange.T
+    controls = np.random.default_rng(0).uniform(low, high, size=(physics_steps // frame_skip, model.nu))
+    start = time.perf_counter()
+    for ctrl in controls:
+        data.ctrl[:] = ctrl
+        mujoco.mj_step(model, data, nstep=frame_skip)
+    return time.perf_counter() - start
+
+
+def build(name: str, env_id: str, n_envs: int, n_steps: int, seed: int) -> Any:
+    env = make_vec_env(env_id, n_envs=n_envs, seed=seed)
+    common = dict(
+        n_steps=n_steps, batch_size=n_steps * n_envs // 4, cg_max_steps=10, n_critic_updates=10, seed=seed,
+        policy_kwargs=dict(net_arch=[100, 100], activation_fn=nn.Tanh), device="cpu",
+    )  # fmt: skip
+    if name == "sb3_contrib.TRPO":
+        return TRPO("MlpPolicy", env, **common)
+    if name == "TRPOPlus":
+        return TRPOPlus("MlpPolicy", env, **common)
+    if name == "TRPOPlus(k=3)":
+        return TRPOPlus("MlpPolicy", env, replay_memory=3, **common)
+    return TRPOPlus("MlpPolicy", env, replay_memory=3, fisher_sub_sampling=4, **common)
+
+
+def _table_row(name: str, s: dict[str, Any]) -> str:
+    def ms(key: str) -> str:
+        return f"{s[key]['median'] * 1e3:.1f}"
+
+    total = f"{ms('total')} [{s['total']['min'] * 1e3:.0f}-{s['total']['max'] * 1e3:.0f}]"
+    cells = [name, total, ms("rollout"), ms("recompute"), ms("policy"), ms("critic"), f"{s['fisher_products']['median']:.0f}"]
+    cells += [f"{s[k]:.2f}" for k in ("ratio_policy_update_vs_trpo", "ratio_update_vs_trpo_update", "ratio_iteration_vs_trpo")]
+    cells.append(f"{s['simulation_share']:.0%}")
+    return "| " + " | ".join(cells) + " |"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--envs", nargs="+", default=["Reacher2D-v0", "Grasper3D-v0", "Hopper-v5"])
+    parser.add_argument("--n-envs", type=int, default=8)
+    parser.add_argument("--n-steps", type=int, default=256)
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--out", default="benchmarks/results/speed.json")
+    args = parser.parse_args()
+    th.set_num_threads(args.threads)
+    contenders = ["sb3_contrib.TRPO", "TRPOPlus", "TRPOPlus(k=3)", "TRPOPlus(k=3,fisher/4)"]
+    results: dict[str, Any] = {
+        "command": "python benchmarks/speed.py --envs "
+        + " ".join(args.envs)
+        + "".join(f" --{k.replace('_', '-')} {v}" for k, v in vars(args).items() if not isinstance(v, list)),
+        "machine": {"cpu": platform.processor() or platform.machine(), "python": platform.python_version()},
+        "versions": {
+            "torch": th.__version__,
+            "stable_baselines3": stable_baselines3.__version__,
+            "sb3_contrib": sb3_contrib.__version__,
+            "gymnasium": gym.__version__,
+            "mujoco": mujoco.__version__,
+        },
+        "settings": {
+            "n_envs": args.n_envs,
+            "n_steps": args.n_steps,
+            "repeats": args.repeats,
+            "threads": args.threads,
+            "net_arch": [100, 100],
+            "cg_max_steps": 10,
+            "n_critic_updates": 10,
+        },
+        "envs": {},
+    }
+    samples = args.n_envs * args.n_steps
+    for env_id in args.envs:
+        models = {name: build(name, env_id, args.n_envs, args.n_steps, seed=0) for name in contenders}
+        timers = {name: PhaseTimer(model) for name, model in models.items()}
+        for name, model in models.items():  # warm-up, and fills the replay memory
+            model.learn(samples * (4 if "k=3" in name else 1))
+        rows: dict[str, list[dict[str, float]]] = defaultdict(list)
+        frame_skip = gym.make(env_id).unwrapped.frame_skip
+        for _ in range(args.repeats):
+            for name, model in models.items():
+                timers[name].reset()
+                start = time.perf_counter()
+                model.learn(samples, reset_num_timesteps=False)
+                total = time.perf_counter() - start
+                row = {phase: timers[name].times.get(phase, 0.0) for phase in PHASES}
+                row.update(total=total, fisher_products=timers[name].fisher_products())
+                rows[name].append(row)
+            rows["raw_mj_step"].append({"total": raw_mujoco_time(env_id, samples * frame_skip, frame_skip)})
+        summary: dict[str, Any] = {}
+        for name, name_rows in rows.items():
+            summary[name] = {
+                key: {"median": float(np.median([r[key] for r in name_rows])),
+                      "min": float(np.min([r[key] for r in name_rows])),
+                      "max": float(np.max([r[key] for r in name_rows]))}
+                for key in name_rows[0]
+            }  # fmt: skip
+        anchor = summary["sb3_contrib.TRPO"]
+        raw = summary["raw_mj_step"]["total"]["median"]
+        for name in contenders:
+            s = summary[name]
+            s["ratio_policy_update_vs_trpo"] = s["policy"]["median"] / anchor["policy"]["median"]
+            s["ratio_update_vs_trpo_update"] = (s["recompute"]["median"] + s["policy"]["median"]) / anchor["policy"]["median"]
+            s["ratio_iteration_vs_trpo"] = s["total"]["median"] / anchor["total"]["median"]
+            s["simulation_share"] = raw / s["total"]["median"]
+            s["env_steps_per_s"] = samples / s["total"]["median"]
+        results["envs"][env_id] = summary
+        print(f"\n## {env_id}  ({samples} samples / iteration, raw mj_step {raw * 1e3:.1f} ms)")
+        print("| contender | iteration (ms) | rollout | recompute | policy update | critic | FVPs | policy vs TRPO | "
+              "update vs TRPO | iteration vs TRPO | sim. share |")  # fmt: skip
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        for name in contenders:
+            print(_table_row(name, summary[name]))
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(results, indent=1))
+    print(f"\nraw results: {args.out}")
+
+
+if __name__ == "__main__":
+    main()

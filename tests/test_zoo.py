@@ -1,0 +1,141 @@
+"""Zoo YAML, the trpo-plus command (train, -i, enjoy, record-video, plot) and the docs build."""
+
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import VecNormalize
+
+from sb3_trpo_plus import cli
+from sb3_trpo_plus.zoo import ALGO_FILES, ZOO_DIR, HyperparameterError, algorithms, load_hyperparameters
+
+ROOT = Path(__file__).resolve().parent.parent
+ENTRIES = [(algo, env_id) for algo, f in ALGO_FILES.items() for env_id in load_hyperparameters(ZOO_DIR / f, algo)]
+TINY_ZOO = ["-params", "n_envs:2", "n_steps:32", "batch_size:32", "--eval-freq", "-1", "--num-threads", "1"]
+
+
+@pytest.mark.parametrize(("algo", "env_id"), ENTRIES, ids=[f"{a}-{e}" for a, e in ENTRIES])
+def test_every_yaml_entry_builds_and_runs(algo: str, env_id: str) -> None:
+    params = dict(load_hyperparameters(ZOO_DIR / ALGO_FILES[algo], algo)[env_id])
+    for key in ("n_timesteps", "n_envs", "normalize", "monitor_kwargs", "callback"):
+        params.pop(key, None)
+    policy = params.pop("policy")
+    params.update(n_steps=64, batch_size=64)
+    env = VecNormalize(make_vec_env(env_id, n_envs=2, seed=0))
+    model = algorithms()[algo](policy, env, seed=0, **params)
+    model.learn(256)
+    assert model.num_timesteps >= 256
+
+
+def test_all_envs_have_entries_in_every_file() -> None:
+    expected = {"Reacher2D-v0", "Reacher3D-v0", "Grasper3D-v0", "WallReacher3D-v0", "Reacher-v5", "Pendulum-v1", "Hopper-v5"}
+    for algo, name in ALGO_FILES.items():
+        assert set(load_hyperparameters(ZOO_DIR / name, algo)) == expected, name
+
+
+def test_policy_kwargs_mapping_and_zoo_text_form(tmp_path: Path) -> None:
+    from torch import nn
+
+    text = (
+        "Pendulum-v1:\n  n_timesteps: 1000\n  policy: MlpPolicy\n"
+        '  policy_kwargs: "dict(net_arch=[8], activation_fn=nn.ReLU)"\n'
+    )
+    (tmp_path / "a.yml").write_text(text)
+    params = load_hyperparameters(tmp_path / "a.yml", "trpo")["Pendulum-v1"]
+    assert params["policy_kwargs"] == {"net_arch": [8], "activation_fn": nn.ReLU}
+    mapping = load_hyperparameters(ZOO_DIR / "trpo_plus.yml", "trpo_plus")["Reacher2D-v0"]["policy_kwargs"]
+    assert mapping["activation_fn"] is nn.Tanh
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (
+            "Pendulum-v1:\n  n_timesteps: 1000\n  policy: MlpPolicy\n  replay_memry: 3\n",
+            "replay_memry: unknown hyperparameter",
+        ),
+        ("Pendulum-v1:\n  n_timesteps: 1000\n  policy: MlpPolicy\n  gamma: high\n", "gamma: expected"),
+        ("Pendulum-v1:\n  n_timesteps: 1000\n  policy: MlpPolicy\n  cg_warm_start: 1\n", "cg_warm_start: expected bool"),
+        ("NoSuchEnv-v9:\n  n_timesteps: 1000\n  policy: MlpPolicy\n", "unknown env id 'NoSuchEnv-v9'"),
+        ("Pendulum-v1:\n  n_timesteps: [1000\n", "malformed YAML"),
+        ("Pendulum-v1:\n  policy: MlpPolicy\n", "n_timesteps and policy are required"),
+        ("Pendulum-v1:\n  n_timesteps: 1\n  policy: MlpPolicy\n  policy_kwargs: \"__import__('os')\"\n", "dict(key=value"),
+        ('Pendulum-v1:\n  n_timesteps: 1\n  policy: MlpPolicy\n  policy_kwargs: "dict(net_arch=os.getcwd())"\n', "literal"),
+        ("Pendulum-v1:\n  n_timesteps: 1\n  policy: MlpPolicy\n  policy_kwargs:\n    activation_fn: swish\n", "activation_fn"),
+        ("Pendulum-v1:\n  n_timesteps: 1\n  policy: MlpPolicy\n  policy_kwargs:\n    net_arc: [8]\n", "net_arc"),
+    ],
+)
+def test_bad_yaml_gives_error_naming_file_and_key(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "bad.yml"
+    path.write_text(text)
+    with pytest.raises(HyperparameterError, match=re.escape(message)) as error:
+        load_hyperparameters(path, "trpo_plus")
+    assert str(path) in str(error.value)
+
+
+def _tensorboard_tags(folder: Path) -> set[str]:
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    tags: set[str] = set()
+    for events in folder.rglob("events.out.tfevents*"):
+        accumulator = EventAccumulator(str(events))
+        accumulator.Reload()
+        tags |= set(accumulator.Tags()["scalars"])
+    return tags
+
+
+@pytest.mark.slow
+def test_train_continue_enjoy_video_and_plot(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    logs, tb = tmp_path / "logs", tmp_path / "tb"
+    cli.main(["train", "--env", "Reacher2D-v0", "-n", "256", "--seed", "1", "-f", str(logs), "-tb", str(tb), *TINY_ZOO])
+    run = logs / "trpo_plus" / "Reacher2D-v0_1"
+    assert (run / "Reacher2D-v0.zip").is_file()
+    assert list(run.glob("*.monitor.csv"))
+    assert "is_success" in next(run.glob("*.monitor.csv")).read_text().splitlines()[1]
+    assert (tb / "Reacher2D-v0").is_dir() and any(p.name.startswith("TRPOPlus_seed1") for p in (tb / "Reacher2D-v0").iterdir())
+    tags = _tensorboard_tags(tb)
+    assert {"train/cg_iterations", "rollout/success_rate", "rollout/reward_dist"} <= tags, sorted(tags)
+
+    # -i: continue training from the saved model (a new run folder; rl-zoo restarts the timestep count,
+    # the update counter and the replay memory carry on)
+    cli.main(["train", "--env", "Reacher2D-v0", "-n", "128", "-f", str(logs), "-i", str(run / "Reacher2D-v0.zip"), *TINY_ZOO])
+    continued = logs / "trpo_plus" / "Reacher2D-v0_2" / "Reacher2D-v0.zip"
+    from sb3_trpo_plus import TRPOPlus
+
+    first, second = TRPOPlus.load(run / "Reacher2D-v0.zip"), TRPOPlus.load(continued)
+    assert second._n_updates == first._n_updates + 2  # 128 steps = 2 rollouts of 2 envs x 32 steps
+
+    cli.main(["enjoy", "--env", "Reacher2D-v0", "-f", str(logs), "--no-render", "-n", "60"])
+
+    video = cli.record_video(["--env", "Reacher2D-v0", "-f", str(logs), "-n", "40", "-o", str(tmp_path / "v.mp4"), "--gif"])
+    assert [p.suffix for p in video] == [".mp4", ".gif"]
+    from moviepy import VideoFileClip
+
+    with VideoFileClip(str(video[0])) as clip:
+        frames = list(clip.iter_frames())
+    assert len(frames) >= 30 and np.std(frames[len(frames) // 2]) > 5.0
+
+    png = cli.plot(["--env", "Reacher2D-v0", "-f", str(logs), "--algos", "trpo_plus", "-o", str(tmp_path / "c.png")])
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_unknown_command_and_module_entry_point() -> None:
+    result = subprocess.run([sys.executable, "-m", "sb3_trpo_plus", "nonsense"], capture_output=True, text=True)
+    assert result.returncode == 2 and "usage: trpo-plus" in result.stdout
+
+
+@pytest.mark.skipif(
+    shutil.which("mkdocs") is None and not (Path(sys.executable).parent / "mkdocs").exists(), reason="docs extra"
+)
+def test_docs_build_strict(tmp_path: Path) -> None:
+    mkdocs = shutil.which("mkdocs") or str(Path(sys.executable).parent / "mkdocs")
+    result = subprocess.run(
+        [mkdocs, "build", "--strict", "-d", str(tmp_path / "site")], cwd=ROOT, capture_output=True, text=True
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
