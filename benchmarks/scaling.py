@@ -26,6 +26,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
 import grasp_envs  # noqa: F401
 from sb3_trpo_plus import TRPOPlus
+from sb3_trpo_plus.vec_env import ShardedSubprocVecEnv
 
 COUNTS = (1, 2, 4, 8, 16)
 
@@ -42,8 +43,17 @@ def raw_env_step_time(env_id: str, steps: int = 5000) -> float:
     return (time.perf_counter() - start) / steps
 
 
-def collection_rate(env_id: str, vec_env_cls: type, n_envs: int, samples: int, repeats: int) -> list[float]:
-    kwargs = {"start_method": "forkserver"} if vec_env_cls is SubprocVecEnv else None
+# label -> (VecEnv class, kwargs): one process; one process per env; n_workers processes of several envs
+VEC_ENVS: dict[str, tuple[type, dict | None]] = {
+    "DummyVecEnv": (DummyVecEnv, None),
+    "SubprocVecEnv": (SubprocVecEnv, {"start_method": "forkserver"}),
+    "Sharded-1-worker": (ShardedSubprocVecEnv, {"n_workers": 1}),
+    "Sharded-2-workers": (ShardedSubprocVecEnv, {"n_workers": 2}),
+}
+
+
+def collection_rate(env_id: str, label: str, n_envs: int, samples: int, repeats: int) -> list[float]:
+    vec_env_cls, kwargs = VEC_ENVS[label]
     env = make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=vec_env_cls, vec_env_kwargs=kwargs)
     n_steps = max(samples // n_envs, 1)
     model = TRPOPlus("MlpPolicy", env, n_steps=n_steps, batch_size=n_steps * n_envs, seed=0,
@@ -76,20 +86,22 @@ def main() -> None:
     for env_id in args.envs:
         raw = raw_env_step_time(env_id)
         rows = {}
-        for cls in (DummyVecEnv, SubprocVecEnv):
-            for n in COUNTS:
-                rates = collection_rate(env_id, cls, n, args.samples, args.repeats)
-                rows[f"{cls.__name__}-{n}"] = {"vec_env": cls.__name__, "n_envs": n, "steps_per_s": float(np.median(rates)),
-                                               "all": rates}  # fmt: skip
+        for n in COUNTS:  # interleave the vec envs at each size
+            for label in VEC_ENVS:
+                rates = collection_rate(env_id, label, n, args.samples, args.repeats)
+                rows[f"{label}-{n}"] = {"vec_env": label, "n_envs": n, "steps_per_s": float(np.median(rates)), "all": rates}
         base = rows["DummyVecEnv-1"]["steps_per_s"]
         print(f"\n## {env_id} (raw env.step {raw * 1e6:.0f} µs = {1 / raw:,.0f} steps/s in one process)")
-        print("| vec env | n_envs | env steps/s | speed-up vs 1 env | collection time / raw env.step |")
-        print("|---|---|---|---|---|")
-        for row in rows.values():
+        print("| vec env | n_envs | env steps/s | speed-up vs 1 env | vs 1 worker | collection time / raw env.step |")
+        print("|---|---|---|---|---|---|")
+        for row in sorted(rows.values(), key=lambda r: (list(VEC_ENVS).index(r["vec_env"]), r["n_envs"])):
             row["speedup"] = row["steps_per_s"] / base
+            row["speedup_vs_one_worker"] = row["steps_per_s"] / rows[f"Sharded-1-worker-{row['n_envs']}"]["steps_per_s"]
             row["ratio_to_raw_env_step"] = (1 / row["steps_per_s"]) / raw
-            print(f"| {row['vec_env']} | {row['n_envs']} | {row['steps_per_s']:,.0f} | {row['speedup']:.2f} | "
-                  f"{row['ratio_to_raw_env_step']:.2f} |")  # fmt: skip
+            print(
+                f"| {row['vec_env']} | {row['n_envs']} | {row['steps_per_s']:,.0f} | {row['speedup']:.2f} | "
+                f"{row['speedup_vs_one_worker']:.2f} | {row['ratio_to_raw_env_step']:.2f} |"
+            )
         results["envs"][env_id] = {"raw_env_step_s": raw, "rows": rows}
     (out / "scaling.json").write_text(json.dumps(results, indent=1))
     plot(results, out / "scaling.png")
@@ -105,9 +117,9 @@ def plot(results: dict, path: Path) -> None:
     envs = results["envs"]
     fig, axes = plt.subplots(1, len(envs), figsize=(5.5 * len(envs), 4), squeeze=False)
     for ax, (env_id, data) in zip(axes[0], envs.items(), strict=True):
-        for cls in ("DummyVecEnv", "SubprocVecEnv"):
-            rows = [r for r in data["rows"].values() if r["vec_env"] == cls]
-            ax.plot([r["n_envs"] for r in rows], [r["steps_per_s"] for r in rows], marker="o", label=cls)
+        for label in VEC_ENVS:
+            rows = sorted((r for r in data["rows"].values() if r["vec_env"] == label), key=lambda r: r["n_envs"])
+            ax.plot([r["n_envs"] for r in rows], [r["steps_per_s"] for r in rows], marker="o", label=label)
         ax.axhline(1 / data["raw_env_step_s"], color="grey", linestyle="--", label="raw env.step, 1 process")
         ax.set_xscale("log", base=2)
         ax.set_xlabel("environments")
