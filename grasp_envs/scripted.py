@@ -73,8 +73,11 @@ GRIP_COMMAND = 0.05  # a gentle squeeze: 5 N m on the claw holds the 14 g cube; 
 APPROACH_SPEED, LIFT_SPEED = 0.35, 0.25  # m/s of the grip site
 
 
-def grasper3d_policy(env: ArmEnv) -> NDArray[np.float64]:
-    """Open, align above the cube with the forearm down, descend, close, lift."""
+def grasper3d_policy(env: ArmEnv, lift: bool = True) -> NDArray[np.float64]:
+    """Open, align above the cube with the forearm down, descend, close, lift.
+
+    ``lift=False`` grasps and keeps the cube on the floor: the "farm the contact reward" behaviour.
+    """
     data, model = env.data, env.model
     cube = data.geom("cube").xpos.copy()
     grip = data.site("grip").xpos
@@ -85,7 +88,7 @@ def grasper3d_policy(env: ArmEnv) -> NDArray[np.float64]:
     horizontal = np.linalg.norm((grip - cube)[:2])
     low = cube + np.array([0.0, 0.0, 0.01])  # finger tips just above the floor
     if holding and claw_angle > -0.5:
-        goal, claw = cube + np.array([0.0, 0.0, 0.12]), GRIP_COMMAND  # lift
+        goal, claw = cube + np.array([0.0, 0.0, 0.12 if lift else 0.0]), GRIP_COMMAND  # lift (or hold on the floor)
     elif horizontal < 0.01 and grip[2] - low[2] < 0.006:
         goal, claw = low, GRIP_COMMAND  # close around the cube
     elif horizontal < 0.01:
