@@ -40,7 +40,7 @@ train: $(STAMP)
 	$(BIN)/trpo-plus main --env $(ENV) --algo $(ALGO) --seed $(SEED) $(if $(STEPS),--steps $(STEPS),)
 
 docs: $(STAMP)
-	$(BIN)/mkdocs build --strict
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/speed.py
