@@ -143,8 +143,10 @@ def test_docs_build_strict(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_optuna_samples_trpo_plus_hyperparameters(tmp_path: Path) -> None:
-    cli.main(["train", "--env", "Pendulum-v1", "-optimize", "--n-trials", "1", "-n", "256", "--sampler", "random",
-              "--pruner", "none", "-f", str(tmp_path), "--n-evaluations", "1", "--eval-episodes", "1", "--seed", "0"])  # fmt: skip
+    options = ["--n-trials", "1", "-n", "256", "--sampler", "random", "--pruner", "none", "--n-evaluations", "1"]
+    cli.main(
+        ["train", "--env", "Pendulum-v1", "-optimize", *options, "-f", str(tmp_path), "--eval-episodes", "1", "--seed", "0"]
+    )
     report = next((tmp_path / "trpo_plus").glob("report_Pendulum-v1_*.csv")).read_text()
     for name in ("params_replay_memory", "params_cg_warm_start", "params_cg_damping", "params_value_baseline"):
         assert name in report.splitlines()[0]
