@@ -5,7 +5,6 @@ from __future__ import annotations
 from collections import defaultdict
 from typing import Any
 
-import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import HParam
 
@@ -52,9 +51,3 @@ class RewardTermsCallback(BaseCallback):
     def _on_rollout_end(self) -> None:
         for key, total in self._sums.items():
             self.logger.record(f"rollout/{key}", total / max(self._counts[key], 1))
-
-    @staticmethod
-    def mean_terms(infos: list[dict[str, Any]]) -> dict[str, float]:
-        """Mean of each reward term over ``infos`` (helper for evaluation summaries)."""
-        keys = {k for info in infos for k in info if k.startswith("reward_")}
-        return {k: float(np.mean([info[k] for info in infos if k in info])) for k in sorted(keys)}

@@ -1,0 +1,95 @@
+"""Does the Grasper3D-v0 default reward avoid the thesis reward's collapse? Long runs, resumable.
+
+    python benchmarks/grasper_reward.py --algo trpo --reward-mode staged --seed 0 --steps 3000000 [--chunk 250000]
+
+Trains the anchor setting of issue #3 (sb3-contrib TRPO or TRPOPlus, 8 envs, VecNormalize, 100-100 tanh
+MLP, gamma 0.995, target_kl 0.01) in chunks; after each chunk it saves the model and VecNormalize
+statistics and appends the chunk's training-episode statistics (lift rate = episodes whose final step
+was a success, mean return) to benchmarks/results/grasper_reward/<run>.json. Rerunning continues from the
+last chunk, so a session ending mid-run loses at most one chunk.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch as th
+from sb3_contrib import TRPO
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import VecNormalize
+from torch import nn
+
+import grasp_envs  # noqa: F401
+from sb3_trpo_plus import TRPOPlus
+
+ALGOS = {"trpo": TRPO, "trpo_plus": TRPOPlus}
+
+
+class EpisodeStats(BaseCallback):
+    """Collects (return, success, length) of every finished training episode."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.episodes: list[tuple[float, bool, int]] = []
+
+    def _on_step(self) -> bool:
+        for info, done in zip(self.locals["infos"], self.locals["dones"], strict=True):
+            if done and "episode" in info:
+                self.episodes.append(
+                    (float(info["episode"]["r"]), bool(info.get("is_success", False)), int(info["episode"]["l"]))
+                )
+        return True
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--algo", choices=list(ALGOS), default="trpo")
+    parser.add_argument("--reward-mode", choices=["staged", "thesis"], default="staged")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--steps", type=int, default=3_000_000)
+    parser.add_argument("--chunk", type=int, default=250_000)
+    parser.add_argument("--out", default="benchmarks/results/grasper_reward")
+    args = parser.parse_args()
+    th.set_num_threads(1)
+    name = f"{args.algo}_{args.reward_mode}_seed{args.seed}"
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    log_path, model_path, stats_path = out / f"{name}.json", out / f"{name}_model.zip", out / f"{name}_vecnormalize.pkl"
+    log = json.loads(log_path.read_text()) if log_path.exists() else {"settings": vars(args), "chunks": []}
+    env_kwargs = {"reward_mode": args.reward_mode}
+    monitor = {"info_keywords": ("is_success",)}
+    venv = make_vec_env("Grasper3D-v0", n_envs=8, seed=args.seed + 1000 * len(log["chunks"]), env_kwargs=env_kwargs,
+                        monitor_kwargs=monitor)  # fmt: skip
+    algo = ALGOS[args.algo]
+    if model_path.exists() and stats_path.exists():
+        env = VecNormalize.load(str(stats_path), venv)
+        model = algo.load(model_path, env=env)
+    else:
+        env = VecNormalize(venv, gamma=0.995)
+        policy_kwargs = dict(net_arch=[100, 100], activation_fn=nn.Tanh)
+        model = algo("MlpPolicy", env, n_steps=1024, batch_size=1024, gamma=0.995, gae_lambda=0.97, target_kl=0.01,
+                     cg_max_steps=10, seed=args.seed, policy_kwargs=policy_kwargs)  # fmt: skip
+    while model.num_timesteps < args.steps:
+        stats = EpisodeStats()
+        start = time.time()
+        model.learn(args.chunk, callback=stats, reset_num_timesteps=False)
+        model.save(model_path)
+        env.save(str(stats_path))
+        returns = [e[0] for e in stats.episodes]
+        lifts = [e[1] for e in stats.episodes]
+        log["chunks"].append({"timesteps": int(model.num_timesteps), "episodes": len(stats.episodes),
+                              "lift_rate": float(np.mean(lifts)) if lifts else 0.0,
+                              "mean_return": float(np.mean(returns)) if returns else float("nan"),
+                              "mean_length": float(np.mean([e[2] for e in stats.episodes])) if stats.episodes else 0.0,
+                              "seconds": time.time() - start})  # fmt: skip
+        log_path.write_text(json.dumps(log, indent=1))
+        print(json.dumps(log["chunks"][-1]), flush=True)
+
+
+if __name__ == "__main__":
+    main()
