@@ -43,7 +43,7 @@ def _zoo_argv(algo: str, env: str, rest: Sequence[str]) -> list[str]:
 
 
 def _name_tensorboard_runs() -> None:
-    """TensorBoard runs named ``<Algorithm>_seed<seed>`` under ``<tensorboard-log>/<env>``."""
+    """TensorBoard runs under ``<tensorboard-log>/<env>/seed<seed>/<Algorithm>_<n>``: env, seed and algorithm."""
     from rl_zoo3.exp_manager import ExperimentManager
 
     if getattr(ExperimentManager.learn, "_named", False):
@@ -52,11 +52,9 @@ def _name_tensorboard_runs() -> None:
 
     @functools.wraps(original)
     def learn(self: Any, model: Any) -> None:
-        model.learn = functools.partial(model.learn, tb_log_name=f"{type(model).__name__}_seed{self.seed}")
-        try:
-            original(self, model)
-        finally:
-            del model.learn  # back to the class' method (an instance attribute would be saved with the model)
+        if model.tensorboard_log:  # a plain string attribute: the model stays picklable for checkpoints
+            model.tensorboard_log = os.path.join(model.tensorboard_log, f"seed{self.seed}")
+        original(self, model)
 
     learn._named = True  # type: ignore[attr-defined]
     ExperimentManager.learn = learn  # type: ignore[method-assign]

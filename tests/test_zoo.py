@@ -16,7 +16,7 @@ from sb3_trpo_plus.zoo import ALGO_FILES, ZOO_DIR, HyperparameterError, algorith
 
 ROOT = Path(__file__).resolve().parent.parent
 ENTRIES = [(algo, env_id) for algo, f in ALGO_FILES.items() for env_id in load_hyperparameters(ZOO_DIR / f, algo)]
-TINY_ZOO = ["-params", "n_envs:2", "n_steps:32", "batch_size:32", "--eval-freq", "-1", "--num-threads", "1"]
+TINY_ZOO = ["-params", "n_envs:2", "n_steps:32", "batch_size:32", "--num-threads", "1"]
 
 
 @pytest.mark.parametrize(("algo", "env_id"), ENTRIES, ids=[f"{a}-{e}" for a, e in ENTRIES])
@@ -93,18 +93,24 @@ def _tensorboard_tags(folder: Path) -> set[str]:
 def test_train_continue_enjoy_video_and_plot(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     logs, tb = tmp_path / "logs", tmp_path / "tb"
-    cli.main(["train", "--env", "Reacher2D-v0", "-n", "256", "--seed", "1", "-f", str(logs), "-tb", str(tb), *TINY_ZOO])
+    # with evaluation and checkpoints, which save the model while it trains
+    evaluation = ["--eval-freq", "64", "--eval-episodes", "1", "--save-freq", "64"]
+    cli.main(
+        ["train", "--env", "Reacher2D-v0", "-n", "256", "--seed", "1", "-f", str(logs), "-tb", str(tb), *evaluation, *TINY_ZOO]
+    )
     run = logs / "trpo_plus" / "Reacher2D-v0_1"
     assert (run / "Reacher2D-v0.zip").is_file()
     assert list(run.glob("*.monitor.csv"))
     assert "is_success" in next(run.glob("*.monitor.csv")).read_text().splitlines()[1]
-    assert (tb / "Reacher2D-v0").is_dir() and any(p.name.startswith("TRPOPlus_seed1") for p in (tb / "Reacher2D-v0").iterdir())
+    assert (run / "best_model.zip").is_file() and list(run.glob("rl_model_*_steps.zip"))
+    assert [p.name for p in (tb / "Reacher2D-v0" / "seed1").iterdir()] == ["TRPOPlus_1"]
     tags = _tensorboard_tags(tb)
     assert {"train/cg_iterations", "rollout/success_rate", "rollout/reward_dist"} <= tags, sorted(tags)
 
     # -i: continue training from the saved model (a new run folder; rl-zoo restarts the timestep count,
     # the update counter and the replay memory carry on)
-    cli.main(["train", "--env", "Reacher2D-v0", "-n", "128", "-f", str(logs), "-i", str(run / "Reacher2D-v0.zip"), *TINY_ZOO])
+    continue_args = ["-n", "128", "-f", str(logs), "-i", str(run / "Reacher2D-v0.zip"), "--eval-freq", "-1"]
+    cli.main(["train", "--env", "Reacher2D-v0", *continue_args, *TINY_ZOO])
     continued = logs / "trpo_plus" / "Reacher2D-v0_2" / "Reacher2D-v0.zip"
     from sb3_trpo_plus import TRPOPlus
 
