@@ -17,9 +17,9 @@ import platform
 import time
 from pathlib import Path
 
-import gymnasium as gym
 import numpy as np
 import torch as th
+from env_speed import time_env_step  # benchmarks/ is on sys.path when this file runs as a script
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
@@ -29,18 +29,6 @@ from sb3_trpo_plus import TRPOPlus
 from sb3_trpo_plus.vec_env import ShardedSubprocVecEnv
 
 COUNTS = (1, 2, 4, 8, 16)
-
-
-def raw_env_step_time(env_id: str, steps: int = 5000) -> float:
-    env = gym.make(env_id)
-    env.reset(seed=0)
-    actions = np.random.default_rng(0).uniform(env.action_space.low, env.action_space.high, (steps, *env.action_space.shape))
-    start = time.perf_counter()
-    for action in actions:
-        _, _, terminated, truncated, _ = env.step(action)
-        if terminated or truncated:
-            env.reset()
-    return (time.perf_counter() - start) / steps
 
 
 # label -> (VecEnv class, kwargs): one process; one process per env; n_workers processes of several envs
@@ -84,7 +72,7 @@ def main() -> None:
                                  "python": platform.python_version(), "torch": th.__version__},
                      "samples": args.samples, "repeats": args.repeats, "envs": {}}  # fmt: skip
     for env_id in args.envs:
-        raw = raw_env_step_time(env_id)
+        raw = time_env_step(env_id, 5000)
         rows = {}
         for n in COUNTS:  # interleave the vec envs at each size
             for label in VEC_ENVS:
