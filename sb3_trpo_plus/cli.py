@@ -90,6 +90,9 @@ def enjoy(argv: Sequence[str]) -> None:
 
     register_in_rl_zoo()
     packages = [] if "--gym-packages" in rest else ["--gym-packages", "grasp_envs"]
+    if os.environ.get("MUJOCO_GL") == "egl" and not os.environ.get("DISPLAY") and "--no-render" not in rest:
+        print("trpo-plus enjoy: no display, running with --no-render (trpo-plus record-video films the agent)")
+        rest = [*rest, "--no-render"]
     sys.argv = ["trpo-plus enjoy", "--algo", known.algo, "--env", known.env, *packages, *rest]
     zoo_enjoy()
 
