@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import copy
 import io
 import math
 import os
@@ -34,6 +33,7 @@ from sb3_trpo_plus.natural_gradient import (
     LineSearchResult,
     backtracking_line_search,
     conjugate_gradient,
+    detached_distribution,
     fisher_vector_product,
     flat_gradient,
 )
@@ -137,15 +137,17 @@ def validate_hyperparameters(
 
 @dataclass(frozen=True)
 class PolicyBatch:
-    """Samples of one policy update: the current rollout followed by the replayed ones."""
+    """Samples of one policy update: the current rollout (``n_current`` samples) followed by the replayed ones."""
 
     observations: th.Tensor
     actions: th.Tensor
     sampling_log_prob: th.Tensor
     advantages: th.Tensor
-    weight_scale: th.Tensor | None
-    n_replayed: int
-    ess: float
+    n_current: int
+
+    @property
+    def n_replayed(self) -> int:
+        return len(self.advantages) - self.n_current
 
 
 class TRPOPlus(TRPO):
@@ -486,8 +488,7 @@ class TRPOPlus(TRPO):
         current = next(self.rollout_buffer.get(batch_size=None))
         observations, actions = current.observations, current.actions
         sampling_log_prob, advantages = current.old_log_prob, current.advantages
-        weight_scale = None
-        n_replayed, ess = 0, float(len(advantages))
+        n_current = len(advantages)
         if self.replay_memory > 0 and self.rollout_memory:
             obs_list, act_list, logq_list, adv_list = [observations], [actions], [sampling_log_prob], [advantages]
             for rollout in self.rollout_memory:
@@ -498,21 +499,24 @@ class TRPOPlus(TRPO):
                 adv_list.append(th.as_tensor(rollout_adv.reshape(-1), device=self.device))
             observations = th.cat(obs_list)  # type: ignore[arg-type]
             actions, sampling_log_prob, advantages = th.cat(act_list), th.cat(logq_list), th.cat(adv_list)
-            n_replayed = len(observations) - len(current.observations)
-            with th.no_grad():
-                log_prob_now = self.policy.get_distribution(observations).log_prob(self._action_tensor(actions))
-            rho, scale = importance_weights(log_prob_now.cpu().numpy(), sampling_log_prob.cpu().numpy(), self.replay_is_clip)
-            rho[: len(current.observations)] = 1.0  # the current rollout is on-policy by construction
-            scale[: len(current.observations)] = 1.0
-            ess = effective_sample_size(rho * scale)
-            weight_scale = th.as_tensor(scale, dtype=th.float32, device=self.device)
         if self.sub_sampling_factor > 1:
             k = self.sub_sampling_factor
-            n_replayed = len(range(0, len(observations), k)) - len(range(0, len(current.observations), k))
+            n_current = len(range(0, n_current, k))
             observations, actions = observations[::k], actions[::k]
             sampling_log_prob, advantages = sampling_log_prob[::k], advantages[::k]
-            weight_scale = None if weight_scale is None else weight_scale[::k]
-        return PolicyBatch(observations, actions, sampling_log_prob, advantages, weight_scale, n_replayed, ess)
+        return PolicyBatch(observations, actions, sampling_log_prob, advantages, n_current)
+
+    def _importance_weight_scale(self, log_prob: th.Tensor, batch: PolicyBatch) -> tuple[th.Tensor | None, float]:
+        """Truncation factors of the replayed samples' weights ``pi_current / q`` and the weights' ESS (a fraction).
+
+        The current rollout is on-policy by construction (weight 1).
+        """
+        if batch.n_replayed == 0:
+            return None, 1.0
+        rho, scale = importance_weights(log_prob.cpu().numpy(), batch.sampling_log_prob.cpu().numpy(), self.replay_is_clip)
+        rho[: batch.n_current], scale[: batch.n_current] = 1.0, 1.0
+        ess = effective_sample_size(rho * scale) / len(rho)
+        return th.as_tensor(scale, dtype=th.float32, device=self.device), ess
 
     def _action_tensor(self, actions: th.Tensor) -> th.Tensor:
         return actions.long().flatten() if isinstance(self.action_space, spaces.Discrete) else actions
@@ -520,17 +524,16 @@ class TRPOPlus(TRPO):
     def _update_policy(self, batch: PolicyBatch) -> LineSearchResult:
         """Natural-gradient step within the trust region (gradient, CG, step scaling, line search)."""
         actions = self._action_tensor(batch.actions)
+        distribution = self.policy.get_distribution(batch.observations)
+        # Anchor of the KL constraint and of the Fisher matrix: the current policy on all states
+        old_distribution = detached_distribution(distribution)
+        log_prob = distribution.log_prob(actions)
+        weight_scale, ess = self._importance_weight_scale(log_prob.detach(), batch)
         advantages = batch.advantages
         if self.normalize_advantage:
             advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
-        if batch.weight_scale is not None:
-            advantages = advantages * batch.weight_scale
-
-        with th.no_grad():
-            # Anchor of the KL constraint and of the Fisher matrix: the current policy on all states
-            old_distribution = copy.copy(self.policy.get_distribution(batch.observations))
-        distribution = self.policy.get_distribution(batch.observations)
-        log_prob = distribution.log_prob(actions)
+        if weight_scale is not None:
+            advantages = advantages * weight_scale
         objective = (advantages * th.exp(log_prob - batch.sampling_log_prob)).mean()
         gradient = flat_gradient(objective, self._actor_params, retain_graph=self.fisher_sub_sampling == 1)
         fisher_distribution = distribution
@@ -566,6 +569,7 @@ class TRPOPlus(TRPO):
             "fisher_products": cg.matvecs + (0 if cg.quadratic_form > 0 else 1),
             "cg_warm_start_cosine": _cosine(warm_start, direction) if warm_start is not None else 0.0,
             "objective_before": float(objective.detach()),
+            "replay_ess": ess,
         }
         return result
 
@@ -664,7 +668,7 @@ class TRPOPlus(TRPO):
         record("train/step_size", line_search.coefficient)
         record("train/line_search_nonfinite", float(line_search.nonfinite))
         record("train/replay_samples", batch.n_replayed)
-        record("train/replay_ess", batch.ess / max(len(batch.sampling_log_prob) * self.sub_sampling_factor, 1))
+        record("train/replay_ess", stats["replay_ess"])
         record("train/critic_skipped_steps", skipped_critic_steps)
         record("train/update_time", seconds)
 

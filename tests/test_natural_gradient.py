@@ -229,3 +229,21 @@ def test_fisher_sub_sampling_error_is_bounded() -> None:
     x_sub = conjugate_gradient(lambda v: sub(v) + 0.1 * v, g, max_iter=20).solution
     cosine = float(x_full @ x_sub / (th.linalg.vector_norm(x_full) * th.linalg.vector_norm(x_sub)))
     assert cosine > 0.98, cosine
+
+
+@pytest.mark.parametrize("action_space", [spaces.Box(-1, 1, (2,)), spaces.Discrete(3), spaces.MultiDiscrete([2, 3])])
+def test_detached_distribution_is_the_kl_anchor(action_space: spaces.Space) -> None:
+    from stable_baselines3.common.distributions import kl_divergence
+
+    from sb3_trpo_plus.natural_gradient import detached_distribution
+
+    policy = ActorCriticPolicy(spaces.Box(-1, 1, (3,)), action_space, lambda _: 1e-3, net_arch=[4])
+    obs = th.randn(6, 3)
+    distribution = policy.get_distribution(obs)
+    anchor = detached_distribution(distribution)
+    kl = kl_divergence(distribution, anchor).mean()
+    assert float(kl) == pytest.approx(0.0, abs=1e-7)
+    assert kl.requires_grad  # through `distribution` only
+    actions = distribution.sample()
+    np.testing.assert_allclose(anchor.log_prob(actions).numpy(), distribution.log_prob(actions).detach().numpy())
+    assert not anchor.log_prob(actions).requires_grad
