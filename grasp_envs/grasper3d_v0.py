@@ -75,7 +75,8 @@ class Grasper3DEnv(ArmEnv):
     holding the cube up earns the most on *every* step, so the best return needs a grasp, a lift and a hold.
 
     - `reward_reach` $= w_{reach} (1 - \tanh(10 \lVert p_{grip} - p_{cube} \rVert))$, `reward_reach_weight` (1)
-    - `reward_grasp` $= w_{grasp}$ while both claw halves touch the cube, `reward_grasp_weight` (0.5)
+    - `reward_grasp` $= w_{grasp} \cdot n / 8$ with $n$ the claw capsules touching the cube (0..8),
+      `reward_grasp_weight` (1): the thesis' contact shaping, bounded and smaller than the lift terms
     - `reward_lift` $= w_{lift} \min(h / 0.05, 1)$ while both halves touch the cube, `reward_lift_weight` (2);
       $h$ is the height of the cube's bottom face above the floor, measured from its geom
     - `reward_hold` $= w_{hold}$ while the task is solved (see below), `reward_hold_weight` (2)
@@ -111,7 +112,7 @@ class Grasper3DEnv(ArmEnv):
     | `default_camera_config` | oblique view | camera of `render()` |
     | `reward_mode` | `"staged"` | `"staged"` or `"thesis"` |
     | `reward_reach_weight` | `1.0` | weight of `reward_reach` (staged) |
-    | `reward_grasp_weight` | `0.5` | weight of `reward_grasp` (staged) |
+    | `reward_grasp_weight` | `1.0` | weight of `reward_grasp` (staged) |
     | `reward_lift_weight` | `2.0` | weight of `reward_lift` (staged) |
     | `reward_hold_weight` | `2.0` | weight of `reward_hold` (staged) |
     | `reward_control_weight` | `None` | weight of `reward_ctrl`; `None`: 0.1 (staged) or 1 (thesis) |
@@ -134,7 +135,7 @@ class Grasper3DEnv(ArmEnv):
         default_camera_config: dict[str, Any] = DEFAULT_CAMERA_CONFIG_3D,
         reward_mode: str = "staged",
         reward_reach_weight: float = 1.0,
-        reward_grasp_weight: float = 0.5,
+        reward_grasp_weight: float = 1.0,
         reward_lift_weight: float = 2.0,
         reward_hold_weight: float = 2.0,
         reward_control_weight: float | None = None,
@@ -232,7 +233,7 @@ class Grasper3DEnv(ArmEnv):
             terms = {
                 "reward_reach": self._reward_reach_weight
                 * (1.0 - float(np.tanh(10.0 * np.linalg.norm(self.site_pos("grip") - cube)))),
-                "reward_grasp": self._reward_grasp_weight * float(grasped),
+                "reward_grasp": self._reward_grasp_weight * (contacts["right"] + contacts["left"]) / 8.0,
                 "reward_lift": self._reward_lift_weight * float(grasped) * min(max(height, 0.0) / self._lift_height, 1.0),
                 "reward_hold": self._reward_hold_weight * float(solved),
                 "reward_ctrl": ctrl,
