@@ -54,7 +54,11 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=3_000_000)
     parser.add_argument("--chunk", type=int, default=250_000)
     parser.add_argument("--out", default="benchmarks/results/grasper_reward")
+    parser.add_argument("--plot", default=None, help="only plot every run under --out (recursively) to this PNG")
     args = parser.parse_args()
+    if args.plot:
+        plot(Path(args.out), Path(args.plot))
+        return
     th.set_num_threads(1)
     name = f"{args.algo}_{args.reward_mode}_seed{args.seed}"
     out = Path(args.out)
@@ -89,6 +93,33 @@ def main() -> None:
                               "seconds": time.time() - start})  # fmt: skip
         log_path.write_text(json.dumps(log, indent=1))
         print(json.dumps(log["chunks"][-1]), flush=True)
+
+
+def plot(folder: Path, output: Path) -> None:
+    """Lift rate and mean return of the training episodes against timesteps, one line per run."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (lift_ax, return_ax) = plt.subplots(1, 2, figsize=(11, 4))
+    for path in sorted(folder.rglob("*.json")):
+        chunks = json.loads(path.read_text())["chunks"]
+        label = str(path.relative_to(folder).with_suffix(""))
+        steps = [c["timesteps"] for c in chunks]
+        lift_ax.plot(steps, [c["lift_rate"] for c in chunks], marker=".", label=label)
+        return_ax.plot(steps, [c["mean_return"] for c in chunks], marker=".", label=label)
+    lift_ax.set_ylabel("lift rate (training episodes)")
+    lift_ax.set_ylim(-0.02, 1.02)
+    return_ax.set_ylabel("mean training return")
+    for ax in (lift_ax, return_ax):
+        ax.set_xlabel("timesteps")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("Grasper3D-v0, sb3-contrib TRPO (8 envs, VecNormalize, 100-100 tanh, gamma 0.995)")
+    fig.tight_layout()
+    fig.savefig(output, dpi=100)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
