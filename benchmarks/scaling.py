@@ -63,6 +63,8 @@ def main() -> None:
     parser.add_argument("--envs", nargs="+", default=["Grasper3D-v0", "Reacher2D-v0"])
     parser.add_argument("--samples", type=int, default=8192)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--counts", type=int, nargs="+", default=list(COUNTS), help="numbers of envs")
+    parser.add_argument("--vec-envs", nargs="+", default=list(VEC_ENVS), choices=list(VEC_ENVS))
     parser.add_argument("--out", default="benchmarks/results")
     args = parser.parse_args()
     th.set_num_threads(1)
@@ -74,26 +76,30 @@ def main() -> None:
     for env_id in args.envs:
         raw = time_env_step(env_id, 5000)
         rows = {}
-        for n in COUNTS:  # interleave the vec envs at each size
-            for label in VEC_ENVS:
+        for n in args.counts:  # interleave the vec envs at each size
+            for label in args.vec_envs:
                 rates = collection_rate(env_id, label, n, args.samples, args.repeats)
                 rows[f"{label}-{n}"] = {"vec_env": label, "n_envs": n, "steps_per_s": float(np.median(rates)), "all": rates}
-        base = rows["DummyVecEnv-1"]["steps_per_s"]
+        first = min(args.counts)
+        base = rows[f"{args.vec_envs[0]}-{first}"]["steps_per_s"]
         print(f"\n## {env_id} (raw env.step {raw * 1e6:.0f} µs = {1 / raw:,.0f} steps/s in one process)")
-        print("| vec env | n_envs | env steps/s | speed-up vs 1 env | vs 1 worker | collection time / raw env.step |")
+        print(f"| vec env | n_envs | env steps/s | speed-up vs {args.vec_envs[0]} at {first} | vs 1 worker | "
+              "collection time / raw env.step |")  # fmt: skip
         print("|---|---|---|---|---|---|")
         for row in sorted(rows.values(), key=lambda r: (list(VEC_ENVS).index(r["vec_env"]), r["n_envs"])):
             row["speedup"] = row["steps_per_s"] / base
-            row["speedup_vs_one_worker"] = row["steps_per_s"] / rows[f"Sharded-1-worker-{row['n_envs']}"]["steps_per_s"]
+            one_worker = rows.get(f"Sharded-1-worker-{row['n_envs']}", row)["steps_per_s"]
+            row["speedup_vs_one_worker"] = row["steps_per_s"] / one_worker
             row["ratio_to_raw_env_step"] = (1 / row["steps_per_s"]) / raw
             print(
                 f"| {row['vec_env']} | {row['n_envs']} | {row['steps_per_s']:,.0f} | {row['speedup']:.2f} | "
                 f"{row['speedup_vs_one_worker']:.2f} | {row['ratio_to_raw_env_step']:.2f} |"
             )
         results["envs"][env_id] = {"raw_env_step_s": raw, "rows": rows}
-    (out / "scaling.json").write_text(json.dumps(results, indent=1))
-    plot(results, out / "scaling.png")
-    print(f"\nraw results: {out / 'scaling.json'}, plot: {out / 'scaling.png'}")
+    stem = "scaling" if args.counts == list(COUNTS) else "scaling_" + "_".join(map(str, args.counts))
+    (out / f"{stem}.json").write_text(json.dumps(results, indent=1))
+    plot(results, out / f"{stem}.png")
+    print(f"\nraw results: {out / f'{stem}.json'}, plot: {out / f'{stem}.png'}")
 
 
 def plot(results: dict, path: Path) -> None:
@@ -105,7 +111,7 @@ def plot(results: dict, path: Path) -> None:
     envs = results["envs"]
     fig, axes = plt.subplots(1, len(envs), figsize=(5.5 * len(envs), 4), squeeze=False)
     for ax, (env_id, data) in zip(axes[0], envs.items(), strict=True):
-        for label in VEC_ENVS:
+        for label in dict.fromkeys(r["vec_env"] for r in data["rows"].values()):
             rows = sorted((r for r in data["rows"].values() if r["vec_env"] == label), key=lambda r: r["n_envs"])
             ax.plot([r["n_envs"] for r in rows], [r["steps_per_s"] for r in rows], marker="o", label=label)
         ax.axhline(1 / data["raw_env_step_s"], color="grey", linestyle="--", label="raw env.step, 1 process")
