@@ -55,6 +55,7 @@ def main() -> None:
     parser.add_argument("--chunk", type=int, default=250_000)
     parser.add_argument("--out", default="benchmarks/results/grasper_reward")
     parser.add_argument("--plot", default=None, help="only plot every run under --out (recursively) to this PNG")
+    parser.add_argument("--diagnose", action="store_true", help="only describe what the saved policy does")
     args = parser.parse_args()
     if args.plot:
         plot(Path(args.out), Path(args.plot))
@@ -65,6 +66,9 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     log_path, model_path, stats_path = out / f"{name}.json", out / f"{name}_model.zip", out / f"{name}_vecnormalize.pkl"
     log = json.loads(log_path.read_text()) if log_path.exists() else {"settings": vars(args), "chunks": []}
+    if args.diagnose:
+        diagnose(ALGOS[args.algo], model_path, stats_path, args.reward_mode)
+        return
     env_kwargs = {"reward_mode": args.reward_mode}
     monitor = {"info_keywords": ("is_success",)}
     venv = make_vec_env("Grasper3D-v0", n_envs=8, seed=args.seed + 1000 * len(log["chunks"]), env_kwargs=env_kwargs,
@@ -93,6 +97,33 @@ def main() -> None:
                               "seconds": time.time() - start})  # fmt: skip
         log_path.write_text(json.dumps(log, indent=1))
         print(json.dumps(log["chunks"][-1]), flush=True)
+
+
+def diagnose(algo: type, model_path: Path, stats_path: Path, reward_mode: str, episodes: int = 10) -> None:
+    """Deterministic episodes of the saved policy: where the grip is, how the claw is held, what it touches."""
+    venv = make_vec_env("Grasper3D-v0", n_envs=1, seed=123, env_kwargs={"reward_mode": reward_mode})
+    env = VecNormalize.load(str(stats_path), venv)
+    env.training, env.norm_reward = False, False
+    model = algo.load(model_path, env=env)
+    arm = venv.envs[0].unwrapped
+    rows: dict[str, list[float]] = {"grip-cube distance (m)": [], "right half touches": [], "left half touches": [],
+                                    "claw angle (rad)": [], "forearm axis z": [], "cube height (m)": []}  # fmt: skip
+    for _ in range(episodes):
+        obs = env.reset()
+        for _ in range(100):
+            action, _ = model.predict(obs, deterministic=True)
+            obs, _, done, _ = env.step(action)
+            contacts = arm.claw_cube_contacts()
+            rows["grip-cube distance (m)"].append(float(np.linalg.norm(arm.site_pos("grip") - arm.cube_pos())))
+            rows["right half touches"].append(float(contacts["right"] > 0))
+            rows["left half touches"].append(float(contacts["left"] > 0))
+            rows["claw angle (rad)"].append(float(arm.data.qpos[arm.model.joint("claw_right").qposadr[0]]))
+            rows["forearm axis z"].append(float(arm.data.body("forearm").xmat[6]))
+            rows["cube height (m)"].append(arm.cube_height())
+            if done[0]:
+                break
+    for name, values in rows.items():
+        print(f"{name:>24}: mean {np.mean(values):.3f}")
 
 
 def plot(folder: Path, output: Path) -> None:
