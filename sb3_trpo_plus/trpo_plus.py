@@ -308,6 +308,8 @@ class TRPOPlus(TRPO):
             self.linear_baseline = LinearFeatureBaseline(l2_reg=self.linear_baseline_l2)
         self._recorder: RolloutRecorder | None = None
         self._current_rollout: StoredRollout | None = None
+        # (rollout, observations, values, advantages, returns) of the stored rollouts, for the running update
+        self._replayed: list[tuple[StoredRollout, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
 
     def _make_recorder(self) -> RolloutRecorder:
         obs_space = self.observation_space
@@ -446,10 +448,14 @@ class TRPOPlus(TRPO):
         self._update_learning_rate(self.policy.optimizer)
         if self.value_baseline == "linear":
             self._write_linear_baseline_advantages()
+        # Re-evaluate the stored rollouts once: the value function does not change before the critic fit
+        replaying = self.replay_memory > 0 and self.rollout_memory
+        self._replayed = [(r, *self._recompute(r)) for r in self.rollout_memory] if replaying else []  # type: ignore[union-attr]
         batch = self._policy_batch()
         line_search = self._update_policy(batch)
         value_loss, skipped_critic_steps = self._update_value_baseline()
         self._remember_current_rollout()
+        self._replayed = []
         self._n_updates += 1
         self._log_update(batch, line_search, value_loss, skipped_critic_steps, time.perf_counter() - start)
 
@@ -491,8 +497,7 @@ class TRPOPlus(TRPO):
         n_current = len(advantages)
         if self.replay_memory > 0 and self.rollout_memory:
             obs_list, act_list, logq_list, adv_list = [observations], [actions], [sampling_log_prob], [advantages]
-            for rollout in self.rollout_memory:
-                flat_obs, _, rollout_adv, _ = self._recompute(rollout)
+            for rollout, flat_obs, _, rollout_adv, _ in self._replayed:
                 obs_list.append(self.policy.obs_to_tensor(flat_obs)[0])  # type: ignore[arg-type]
                 act_list.append(th.as_tensor(rollout.actions.reshape(-1, rollout.actions.shape[-1]), device=self.device))
                 logq_list.append(th.as_tensor(rollout.log_probs.reshape(-1), device=self.device))
@@ -613,8 +618,7 @@ class TRPOPlus(TRPO):
             return
         current = next(self.rollout_buffer.get(batch_size=None))
         obs_list, ret_list = [current.observations], [current.returns]
-        for rollout in self.rollout_memory:
-            flat_obs, _, _, rollout_returns = self._recompute(rollout)
+        for _, flat_obs, _, _, rollout_returns in self._replayed:
             obs_list.append(self.policy.obs_to_tensor(flat_obs)[0])  # type: ignore[arg-type]
             ret_list.append(th.as_tensor(rollout_returns.reshape(-1), device=self.device))
         observations, returns = th.cat(obs_list), th.cat(ret_list)  # type: ignore[arg-type]
@@ -630,8 +634,7 @@ class TRPOPlus(TRPO):
         timesteps = self._current_rollout.episode_timesteps.reshape(-1)
         returns = buffer.returns.reshape(-1)
         if self.replay_critic and self.replay_memory > 0:
-            for rollout in self.rollout_memory or []:
-                flat_obs, _, _, rollout_returns = self._recompute(rollout)
+            for rollout, flat_obs, _, _, rollout_returns in self._replayed:
                 obs = np.concatenate([obs, flat_obs.reshape(len(flat_obs), -1)])
                 timesteps = np.concatenate([timesteps, rollout.episode_timesteps.reshape(-1)])
                 returns = np.concatenate([returns, rollout_returns.reshape(-1)])
@@ -692,7 +695,7 @@ class TRPOPlus(TRPO):
         )
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_actor_params", "_recorder", "_cg_stats"]
+        return [*super()._excluded_save_params(), "_actor_params", "_recorder", "_cg_stats", "_replayed"]
 
     def save(
         self,
