@@ -1,75 +1,294 @@
-"""Sample efficiency: TRPOPlus variants, sb3-contrib TRPO and SB3 PPO with the zoo hyperparameters.
+"""Does replay memory / warm-started CG speed up learning? The thesis' experiments (section 5.3), resumable.
 
-    python benchmarks/convergence.py --env Reacher2D-v0 --steps 300000 --seeds 0 1 2 [--jobs 2]
+    python benchmarks/convergence.py run --envs Reacher2D-v0 --seeds 0 1 2 3 4 [--variants ...] [--jobs 2]
+    python benchmarks/convergence.py report          # figures, tables, rliable -> docs/results.md
+    python benchmarks/convergence.py agents          # best TRPOPlus run per env -> trained_agents/
 
-Each (algorithm, seed) is one `trpo-plus train` run in its own process under
-benchmarks/results/convergence/<env>/ and is skipped when its model already exists (resumable). Then
-plots mean ± std over seeds (`trpo-plus plot`) and prints final success rate / return of the last 10% of
-training episodes from the monitor files.
+Variants: TRPOPlus plain (k = 0, zero CG start), + replay (k = 3), + warm start, + both, sb3-contrib TRPO
+and SB3 PPO, each with the zoo hyperparameters of its algorithm (zoo_hyperparams/*.yml) and the
+variant's two switches on top. Every (env, variant, seed) is one job in its own process, trained in
+chunks of budget / 25 steps; after each chunk the job evaluates the deterministic policy on 20 held-out
+episodes (reset seed 10,000, the same episodes at every point and in every run), saves the model and the
+VecNormalize statistics atomically and appends a row to
+benchmarks/results/convergence/<env>/<variant>/seed<k>/progress.csv. A rerun continues every unfinished
+job from its last row, so the study can be stopped at any time (a resumed job's env seeds differ from an
+uninterrupted run's; the CSV says where it resumed).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
+import csv
+import os
 import subprocess
 import sys
+import time
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from sb3_trpo_plus.plotting import run_curve
-
-VARIANTS = {
-    "trpo_plus": ("trpo_plus", []),  # zoo file: k = 3
-    "trpo_plus_warm": ("trpo_plus", ["-params", "cg_warm_start:True"]),
-    "trpo": ("trpo", []),
-    "ppo": ("ppo", []),
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "benchmarks" / "results" / "convergence"
+BUDGETS = {
+    "Reacher2D-v0": 300_000,
+    "Reacher2D-v1": 300_000,
+    "Reacher3D-v0": 1_000_000,
+    "Reacher3D-v1": 1_000_000,
+    "WallReacher3D-v0": 2_000_000,
+    "Grasper3D-v0": 5_000_000,
 }
+TARGETS = {
+    "Reacher2D-v0": 0.9,
+    "Reacher2D-v1": 0.9,
+    "Reacher3D-v0": 0.9,
+    "Reacher3D-v1": 0.9,
+    "WallReacher3D-v0": 0.8,
+    "Grasper3D-v0": 0.9,
+}
+VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
+    "plain": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": False}),
+    "replay": ("trpo_plus", {"replay_memory": 3, "cg_warm_start": False}),
+    "warm": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True}),
+    "both": ("trpo_plus", {"replay_memory": 3, "cg_warm_start": True}),
+    "trpo": ("trpo", {}),
+    "ppo": ("ppo", {}),
+}
+CHUNKS = 25
+EVAL_EPISODES = 20
+EVAL_SEED = 10_000
+# Per-update diagnostics read from the logger after each policy update (mean over the chunk's updates).
+DIAGNOSTICS = {
+    "kl": "train/kl_divergence_loss",
+    "line_search_success": "train/is_line_search_success",
+    "line_search_steps": "train/line_search_steps",
+    "cg_residual": "train/cg_residual",
+    "warm_start_cosine": "train/cg_warm_start_cosine",
+    "replay_ess": "train/replay_ess",
+    "std": "train/std",
+}
+COLUMNS = [
+    "timesteps", "train_seconds", "eval_success", "eval_return", "train_success", "train_return", "train_episodes",
+    *DIAGNOSTICS, "kl_overshoot", "resumed",
+]  # fmt: skip
 
 
-def run(env_id: str, variant: str, seed: int, steps: int, root: Path) -> Path:
-    algo, extra = VARIANTS[variant]
-    folder = root / variant / f"seed{seed}"
-    if (folder / algo / f"{env_id}_1" / f"{env_id}.zip").exists():
-        return folder / algo / f"{env_id}_1"
-    command = [sys.executable, "-m", "sb3_trpo_plus", "train", "--algo", algo, "--env", env_id, "-n", str(steps),
-               "--seed", str(seed), "-f", str(folder), "--eval-freq", "-1", "--num-threads", "1", *extra]  # fmt: skip
-    subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
-    return folder / algo / f"{env_id}_1"
+# ---------------------------------------------------------------------------------------------- one job
+def job_folder(out: Path, env_id: str, variant: str, seed: int) -> Path:
+    return out / env_id / variant / f"seed{seed}"
 
 
-def main() -> None:
+def read_progress(folder: Path) -> list[dict[str, float]]:
+    path = folder / "progress.csv"
+    if not path.exists():
+        return []
+    with path.open() as file:
+        return [
+            {key: float(value) if value != "" else float("nan") for key, value in row.items()} for row in csv.DictReader(file)
+        ]
+
+
+def _hyperparameters(algo: str, env_id: str, overrides: dict[str, Any]) -> dict[str, Any]:
+    from sb3_trpo_plus.zoo import load_hyperparameters
+
+    params = dict(load_hyperparameters(ROOT / "zoo_hyperparams" / f"{algo}.yml", algo, [env_id])[env_id])
+    params.update(overrides)
+    return params
+
+
+def _atomic_replace(write: Any, path: Path) -> None:
+    temporary = path.with_name(f"{path.stem}.tmp{path.suffix}")  # SB3 keeps a name that ends in .zip
+    write(temporary)
+    os.replace(temporary, path)
+
+
+def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None:
+    """Train one (env, variant, seed) to ``steps`` in chunks, resuming from the last saved chunk."""
+    import torch as th
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    import grasp_envs  # noqa: F401
+    from sb3_trpo_plus.zoo import algorithms
+
+    th.set_num_threads(1)
+    folder = job_folder(out, env_id, variant, seed)
+    folder.mkdir(parents=True, exist_ok=True)
+    rows = read_progress(folder)
+    done = int(rows[-1]["timesteps"]) if rows else 0
+    if done >= steps:
+        return
+    algo, overrides = VARIANTS[variant]
+    params = _hyperparameters(algo, env_id, overrides)
+    n_envs, normalize = int(params.pop("n_envs", 1)), params.pop("normalize", False)
+    policy = params.pop("policy")
+    for key in ("n_timesteps", "callback", "monitor_kwargs", "normalize_kwargs", "env_wrapper", "vec_env_wrapper"):
+        params.pop(key, None)
+    algo_class = algorithms()[algo]
+    monitor = {"info_keywords": ("is_success",)}
+    venv = make_vec_env(env_id, n_envs=n_envs, seed=seed + 100_000 * len(rows), monitor_kwargs=monitor)
+    model_path, stats_path = folder / "model.zip", folder / "vecnormalize.pkl"
+    if rows:
+        env = VecNormalize.load(str(stats_path), venv) if normalize else venv
+        model = algo_class.load(model_path, env=env, device="cpu")
+    else:
+        env = VecNormalize(venv, gamma=params.get("gamma", 0.99)) if normalize else venv
+        model = algo_class(policy, env, seed=seed, device="cpu", verbose=0, **params)
+    eval_env = make_vec_env(env_id, n_envs=1, seed=EVAL_SEED)
+    if normalize:
+        eval_env = VecNormalize(eval_env, training=False, norm_reward=False)
+    target_kl = float(getattr(model, "target_kl", None) or float("nan"))
+
+    class Recorder(BaseCallback):
+        """Finished training episodes of the chunk."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.episodes: list[tuple[float, float]] = []
+
+        def _on_step(self) -> bool:
+            for info, done in zip(self.locals["infos"], self.locals["dones"], strict=True):
+                if done and "episode" in info:
+                    self.episodes.append((float(info["episode"]["r"]), float(info.get("is_success", False))))
+            return True
+
+    diagnostics: dict[str, list[float]] = {name: [] for name in DIAGNOSTICS}
+    original_train = model.train
+
+    def train_and_record() -> None:  # the update's logged values, read before SB3 dumps the logger
+        original_train()
+        values = model.logger.name_to_value
+        for name, key in DIAGNOSTICS.items():
+            if key in values:
+                diagnostics[name].append(float(values[key]))
+
+    model.train = train_and_record  # type: ignore[method-assign]
+
+    chunk = max(steps // CHUNKS, 1)
+    seconds = rows[-1]["train_seconds"] if rows else 0.0
+    resumed = 1.0 if rows else 0.0
+    while done < steps:
+        recorder = Recorder()
+        start = time.perf_counter()
+        model.learn(min(chunk, steps - done), callback=recorder, reset_num_timesteps=False)
+        seconds += time.perf_counter() - start
+        done = int(model.num_timesteps)
+        if normalize:
+            eval_env.obs_rms = env.obs_rms  # type: ignore[attr-defined]
+        eval_return, eval_success = evaluate(model, eval_env, EVAL_EPISODES)
+        returns = [r for r, _ in recorder.episodes]
+        successes = [s for _, s in recorder.episodes]
+        means = {name: float(np.mean(v)) if v else float("nan") for name, v in diagnostics.items()}
+        kls = list(diagnostics["kl"])
+        for values in diagnostics.values():
+            values.clear()
+        row = {
+            "timesteps": done, "train_seconds": round(seconds, 2), "eval_success": eval_success,
+            "eval_return": round(eval_return, 4), "train_success": float(np.mean(successes)) if successes else float("nan"),
+            "train_return": round(float(np.mean(returns)), 4) if returns else float("nan"), "train_episodes": len(returns),
+            **{k: round(v, 5) for k, v in means.items()},
+            "kl_overshoot": round(max(kls) / target_kl, 4) if kls and np.isfinite(target_kl) else float("nan"),
+            "resumed": resumed,
+        }  # fmt: skip
+        resumed = 0.0
+        _atomic_replace(model.save, model_path)
+        if normalize:
+            _atomic_replace(lambda p: env.save(str(p)), stats_path)  # type: ignore[attr-defined]
+        _append_row(folder / "progress.csv", row)
+    env.close()
+    eval_env.close()
+
+
+def _append_row(path: Path, row: dict[str, Any]) -> None:
+    new = not path.exists()
+    with path.open("a", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=COLUMNS)
+        if new:
+            writer.writeheader()
+        writer.writerow({key: ("" if isinstance(v, float) and not np.isfinite(v) else v) for key, v in row.items()})
+
+
+def evaluate(model: Any, env: Any, episodes: int) -> tuple[float, float]:
+    """Deterministic return and success rate (final step) over ``episodes`` episodes from reset seed ``EVAL_SEED``."""
+    env.seed(EVAL_SEED)
+    obs = env.reset()
+    returns: list[float] = []
+    successes: list[float] = []
+    while len(returns) < episodes:
+        action, _ = model.predict(obs, deterministic=True)
+        obs, _, dones, infos = env.step(action)
+        if dones[0]:
+            returns.append(float(infos[0]["episode"]["r"]))
+            successes.append(float(infos[0].get("is_success", False)))
+    return float(np.mean(returns)), float(np.mean(successes))
+
+
+# ---------------------------------------------------------------------------------------------- scheduler
+def run_study(
+    envs: Sequence[str], variants: Sequence[str], seeds: Sequence[int], jobs: int, out: Path, steps: int | None
+) -> None:
+    """Run every unfinished job, ``jobs`` at a time, each in its own process (``job`` subcommand)."""
+    todo = []
+    for env_id in envs:
+        budget = steps or BUDGETS[env_id]
+        for seed in seeds:
+            for variant in variants:
+                rows = read_progress(job_folder(out, env_id, variant, seed))
+                if not rows or rows[-1]["timesteps"] < budget:
+                    todo.append((env_id, variant, seed, budget))
+    print(f"{len(todo)} unfinished jobs", flush=True)
+
+    def launch(job: tuple[str, str, int, int]) -> None:
+        env_id, variant, seed, budget = job
+        command = [sys.executable, __file__, "job", "--env", env_id, "--variant", variant, "--seed", str(seed),
+                   "--steps", str(budget), "--out", str(out)]  # fmt: skip
+        start = time.time()
+        result = subprocess.run(command, capture_output=True, text=True)
+        status = "ok" if result.returncode == 0 else f"FAILED ({result.returncode}):\n{result.stderr[-2000:]}"
+        print(f"{env_id} {variant} seed{seed}: {time.time() - start:.0f} s {status}", flush=True)
+
+    with ThreadPoolExecutor(jobs) as pool:
+        list(pool.map(launch, todo))
+
+
+def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--env", default="Reacher2D-v0")
-    parser.add_argument("--steps", type=int, default=300_000)
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--variants", nargs="+", default=list(VARIANTS))
-    parser.add_argument("--jobs", type=int, default=2)
-    parser.add_argument("--out", default="benchmarks/results/convergence")
-    args = parser.parse_args()
-    root = Path(args.out) / args.env
-    jobs = [(v, s) for s in args.seeds for v in args.variants]
-    with ThreadPoolExecutor(args.jobs) as pool:
-        runs = list(pool.map(lambda job: (job[0], run(args.env, job[0], job[1], args.steps, root)), jobs))
-    summary = {}
-    for variant in args.variants:
-        finals_r, finals_s = [], []
-        for name, folder in runs:
-            if name != variant:
-                continue
-            _, returns, success = run_curve(folder)
-            tail = max(len(returns) // 10, 1)
-            finals_r.append(float(np.mean(returns[-tail:])))
-            finals_s.append(float(np.mean(success[-tail:])) if success is not None else float("nan"))
-        summary[variant] = {"final_return": finals_r, "final_success": finals_s}
-        print(f"{variant:>16}: return {np.mean(finals_r):8.2f} ± {np.std(finals_r):.2f}   "
-              f"success {np.mean(finals_s):.2f} ± {np.std(finals_s):.2f}   ({len(finals_r)} seeds)")  # fmt: skip
-    (root / "summary.json").write_text(json.dumps({"steps": args.steps, "seeds": args.seeds, **summary}, indent=1))
-    labels = [f"{variant}={folder}" for variant, folder in runs]
-    subprocess.run([sys.executable, "-m", "sb3_trpo_plus", "plot", "--env", args.env, "--runs", *labels,
-                    "-o", str(root / "learning_curves.png")], check=True)  # fmt: skip
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="run (or resume) the study")
+    run.add_argument("--envs", nargs="+", default=list(BUDGETS), choices=list(BUDGETS))
+    run.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    run.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    run.add_argument("--steps", type=int, default=None, help="override the per-env budget (default: BUDGETS)")
+    run.add_argument("--jobs", type=int, default=2)
+    job = sub.add_parser("job", help="one (env, variant, seed); used by run")
+    job.add_argument("--env", required=True, choices=list(BUDGETS))
+    job.add_argument("--variant", required=True, choices=list(VARIANTS))
+    job.add_argument("--seed", type=int, required=True)
+    job.add_argument("--steps", type=int, required=True)
+    report = sub.add_parser("report", help="figures, tables and rliable aggregates into docs/results.md")
+    report.add_argument("--docs", default=str(ROOT / "docs" / "results.md"))
+    agents = sub.add_parser("agents", help="export the best TRPOPlus run of each env to trained_agents/")
+    agents.add_argument("--envs", nargs="+", default=list(BUDGETS), choices=list(BUDGETS))
+    agents.add_argument("--folder", default=str(ROOT / "trained_agents"))
+    for command in (run, job, report, agents):
+        command.add_argument("--out", default=str(OUT))
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    if args.command == "run":
+        run_study(args.envs, args.variants, args.seeds, args.jobs, out, args.steps)
+    elif args.command == "job":
+        run_job(args.env, args.variant, args.seed, args.steps, out)
+    elif args.command == "report":
+        from convergence_report import write_report  # benchmarks/convergence_report.py
+
+        write_report(out, Path(args.docs))
+    else:
+        from convergence_report import export_agents
+
+        export_agents(out, args.envs, Path(args.folder))
 
 
 if __name__ == "__main__":

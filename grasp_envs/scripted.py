@@ -118,7 +118,9 @@ def grasper3d_policy(env: ArmEnv, lift: bool = True) -> NDArray[np.float64]:
 
 SCRIPTED_POLICIES = {
     "Reacher2D-v0": reacher2d_policy,
+    "Reacher2D-v1": reacher2d_policy,
     "Reacher3D-v0": reacher3d_policy,
+    "Reacher3D-v1": reacher3d_policy,
     "WallReacher3D-v0": wall_reacher3d_policy,
     "Grasper3D-v0": grasper3d_policy,
 }

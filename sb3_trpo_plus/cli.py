@@ -18,6 +18,15 @@ from typing import Any
 import numpy as np
 
 ALGO_CHOICES = ("trpo_plus", "trpo", "ppo")
+TRAINED_AGENTS = Path(__file__).resolve().parents[1] / "trained_agents"  # shipped agents (source checkout)
+
+
+def _default_folder(algo: str, env: str) -> str:
+    """``logs`` when it holds a run of (algo, env), else the shipped ``trained_agents`` when that does."""
+    for folder in (Path("logs"), TRAINED_AGENTS):
+        if any((folder / algo).glob(f"{env}_[0-9]*")):
+            return str(folder)
+    return "logs"
 
 
 def _headless() -> None:
@@ -93,6 +102,10 @@ def enjoy(argv: Sequence[str]) -> None:
     if os.environ.get("MUJOCO_GL") == "egl" and not os.environ.get("DISPLAY") and "--no-render" not in rest:
         print("trpo-plus enjoy: no display, running with --no-render (trpo-plus record-video films the agent)")
         rest = [*rest, "--no-render"]
+    if "-f" not in rest and "--folder" not in rest:
+        folder = _default_folder(known.algo, known.env)
+        print(f"trpo-plus enjoy: loading from {folder}")
+        rest = [*rest, "-f", folder]
     sys.argv = ["trpo-plus enjoy", "--algo", known.algo, "--env", known.env, *packages, *rest]
     zoo_enjoy()
 
@@ -128,7 +141,7 @@ def record_video(argv: Sequence[str]) -> list[Path]:
     parser = argparse.ArgumentParser(prog="trpo-plus record-video")
     parser.add_argument("--env", required=True)
     parser.add_argument("--algo", default="trpo_plus", choices=ALGO_CHOICES)
-    parser.add_argument("-f", "--folder", default="logs", help="rl-zoo log folder")
+    parser.add_argument("-f", "--folder", default=None, help="rl-zoo log folder (default: logs, else trained_agents)")
     parser.add_argument("--exp-id", type=int, default=0, help="0: latest run")
     parser.add_argument("-n", "--n-timesteps", type=int, default=None, help="default: two episodes")
     parser.add_argument("-o", "--output", default=None, help="MP4 path (default: <run>/videos/<env>.mp4)")
@@ -137,6 +150,7 @@ def record_video(argv: Sequence[str]) -> list[Path]:
     parser.add_argument("--stochastic", action="store_true")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
+    args.folder = args.folder or _default_folder(args.algo, args.env)
     model, env, log_path = _load_trained(args.algo, args.env, args.folder, args.exp_id, args.load_best, args.seed, True)
     spec_steps = env.get_attr("spec")[0].max_episode_steps or 200
     steps = args.n_timesteps or 2 * spec_steps

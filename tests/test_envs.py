@@ -28,7 +28,7 @@ def test_gymnasium_and_sb3_checkers(env_id: str) -> None:
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_namespaced_id_and_max_episode_steps(env_id: str) -> None:
     env = gym.make(f"grasp_envs:{env_id}")
-    assert env.spec.max_episode_steps == (50 if env_id == "Reacher2D-v0" else 100)
+    assert env.spec.max_episode_steps == (50 if env_id.startswith("Reacher2D") else 100)
     assert env.spec.reward_threshold is not None
 
 
@@ -159,7 +159,7 @@ def test_registration_visible_in_subprocess_workers() -> None:
         env.close()
 
 
-@pytest.mark.parametrize("env_id", ["Reacher2D-v0", "Reacher3D-v0", "WallReacher3D-v0"])
+@pytest.mark.parametrize("env_id", ["Reacher2D-v0", "Reacher2D-v1", "Reacher3D-v0", "Reacher3D-v1", "WallReacher3D-v0"])
 def test_scripted_controller_reaches_target(env_id: str) -> None:
     env = gym.make(env_id)
     policy = SCRIPTED_POLICIES[env_id]
@@ -238,3 +238,25 @@ def test_staged_reward_pays_lifting_more_than_holding_the_cube_down() -> None:
         margins.append(lifted - touched)
     # measured: 7 episodes, lift beats touch by 12 to 80 (mean ~46) although the lift starts late in the episode
     assert len(margins) >= 5 and np.mean(margins) > 30.0, margins
+
+
+def test_reacher2d_v1_adds_a_bounded_precision_bonus_to_v0() -> None:
+    """v1 = v0's dynamics and reward plus w (1 - tanh(d / sigma)): equal trajectories, the bonus computed by hand."""
+    v0, v1 = gym.make("Reacher2D-v0"), gym.make("Reacher2D-v1", reward_near_weight=0.5, near_scale=0.05)
+    obs0, _ = v0.reset(seed=4)
+    obs1, _ = v1.reset(seed=4)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        action = rng.uniform(-1, 1, size=2)
+        obs0, reward0, *_ = v0.step(action)
+        obs1, reward1, *_, info1 = v1.step(action)
+        np.testing.assert_array_equal(obs0, obs1)
+        bonus = 0.5 * (1.0 - np.tanh(info1["distance"] / 0.05))
+        assert info1["reward_near"] == pytest.approx(bonus) and 0.0 <= bonus <= 0.5
+        assert reward1 == pytest.approx(reward0 + bonus)
+    # at the target the bonus is the full weight; 2 cm away (the success radius) it is 0.31 of it
+    env = gym.make("Reacher2D-v1").unwrapped
+    env.reset(seed=0)
+    assert env._get_rew(np.zeros(2))[1]["reward_near"] == pytest.approx(0.5 * (1 - np.tanh(env.distance() / 0.05)))
+    with pytest.raises(ValueError, match="near_scale"):
+        gym.make("Reacher2D-v1", near_scale=0.0)

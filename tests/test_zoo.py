@@ -33,7 +33,17 @@ def test_every_yaml_entry_builds_and_runs(algo: str, env_id: str) -> None:
 
 
 def test_all_envs_have_entries_in_every_file() -> None:
-    expected = {"Reacher2D-v0", "Reacher3D-v0", "Grasper3D-v0", "WallReacher3D-v0", "Reacher-v5", "Pendulum-v1", "Hopper-v5"}
+    expected = {
+        "Reacher2D-v0",
+        "Reacher2D-v1",
+        "Reacher3D-v1",
+        "Reacher3D-v0",
+        "Grasper3D-v0",
+        "WallReacher3D-v0",
+        "Reacher-v5",
+        "Pendulum-v1",
+        "Hopper-v5",
+    }
     for algo, name in ALGO_FILES.items():
         assert set(load_hyperparameters(ZOO_DIR / name, algo)) == expected, name
 

@@ -1,0 +1,276 @@
+"""Figures, tables, rliable aggregates and trained-agent export for benchmarks/convergence.py.
+
+Reads only the committed per-run CSVs (benchmarks/results/convergence/<env>/<variant>/seed<k>/progress.csv),
+so the report can be rebuilt on any machine; ``export_agents`` also needs the runs' saved models.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from convergence import BUDGETS, EVAL_EPISODES, TARGETS, VARIANTS, job_folder, read_progress
+
+BEGIN, END = "<!-- convergence-report:begin -->", "<!-- convergence-report:end -->"
+LABELS = {
+    "plain": "TRPOPlus plain",
+    "replay": "TRPOPlus + replay (k=3)",
+    "warm": "TRPOPlus + warm start",
+    "both": "TRPOPlus + both",
+    "trpo": "sb3-contrib TRPO",
+    "ppo": "SB3 PPO",
+}
+AGENT_EPISODES = 20
+AGENT_SEED = 20_000  # held out from training (seeds < 100,000 + n_envs) and from the study's evaluations (10,000)
+
+
+def complete_runs(out: Path, env_id: str, variant: str) -> dict[int, list[dict[str, float]]]:
+    """{seed: rows} of the runs of (env, variant) that reached the env's budget."""
+    runs = {}
+    for folder in sorted((out / env_id / variant).glob("seed*")):
+        rows = read_progress(folder)
+        if rows and rows[-1]["timesteps"] >= BUDGETS[env_id]:
+            runs[int(folder.name[4:])] = rows
+    return runs
+
+
+def steps_to_target(rows: list[dict[str, float]], target: float) -> tuple[float, float]:
+    """(timesteps, training seconds) of the first evaluation with success >= target; nan if never."""
+    for row in rows:
+        if row["eval_success"] >= target:
+            return row["timesteps"], row["train_seconds"]
+    return float("nan"), float("nan")
+
+
+def _curve(rows: list[dict[str, float]], key: str, grid: np.ndarray) -> np.ndarray:
+    steps = np.array([0.0] + [row["timesteps"] for row in rows])
+    start = 0.0 if key == "eval_success" else rows[0][key]
+    return np.interp(grid, steps, np.array([start] + [row[key] for row in rows]))
+
+
+def figure(out: Path, env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    grid = np.linspace(0, BUDGETS[env_id], 101)
+    for variant, seeds in runs.items():
+        if not seeds:
+            continue
+        for ax, key in zip(axes, ("eval_return", "eval_success"), strict=True):
+            curves = np.array([_curve(rows, key, grid) for rows in seeds.values()])
+            mean, std = curves.mean(axis=0), curves.std(axis=0)
+            ax.plot(grid, mean, label=f"{LABELS[variant]} ({len(seeds)})")
+            ax.fill_between(grid, mean - std, mean + std, alpha=0.2)
+    axes[0].set_ylabel(f"evaluation return ({EVAL_EPISODES} episodes)")
+    axes[1].set_ylabel("evaluation success rate")
+    axes[1].axhline(TARGETS[env_id], color="k", linestyle=":", linewidth=1)
+    axes[1].set_ylim(-0.05, 1.05)
+    for ax in axes:
+        ax.set_xlabel("env steps")
+        ax.grid(alpha=0.3)
+    axes[1].legend(fontsize=8)
+    fig.suptitle(f"{env_id}: deterministic evaluation, mean ± std over seeds")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _fmt(values: list[float], digits: int = 2) -> str:
+    finite = [v for v in values if np.isfinite(v)]
+    if not finite:
+        return "—"
+    return f"{np.mean(finite):.{digits}f} ± {np.std(finite):.{digits}f}"
+
+
+def _median_reached(values: list[float], scale: float, unit: str) -> str:
+    reached = [v for v in values if np.isfinite(v)]
+    if not reached:
+        return f"never (0/{len(values)})"
+    return f"{np.median(reached) / scale:.{0 if unit == 's' else 2}f}{unit} ({len(reached)}/{len(values)})"
+
+
+def tables(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]) -> list[str]:
+    target = TARGETS[env_id]
+    lines = [
+        f"| variant | seeds | final success | best success | final return | steps to {target:.0%} | "
+        f"train time to {target:.0%} | train time (total) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for variant, seeds in runs.items():
+        if not seeds:
+            continue
+        rows = list(seeds.values())
+        reached = [steps_to_target(r, target) for r in rows]
+        lines.append(
+            f"| {LABELS[variant]} | {len(rows)} | {_fmt([r[-1]['eval_success'] for r in rows])} | "
+            f"{_fmt([max(x['eval_success'] for x in r) for r in rows])} | {_fmt([r[-1]['eval_return'] for r in rows])} | "
+            f"{_median_reached([s for s, _ in reached], 1e6, 'M')} | {_median_reached([t for _, t in reached], 1, 's')} | "
+            f"{_fmt([r[-1]['train_seconds'] for r in rows], 0)} s |"
+        )
+    return lines
+
+
+def diagnostics_table(runs: dict[str, dict[int, list[dict[str, float]]]]) -> list[str]:
+    keys = ["kl", "kl_overshoot", "line_search_success", "line_search_steps", "cg_residual", "warm_start_cosine", "replay_ess"]
+    lines = ["| variant | " + " | ".join(keys) + " |", "|---" * (len(keys) + 1) + "|"]
+    for variant, seeds in runs.items():
+        if not seeds:
+            continue
+        cells = []
+        for key in keys:
+            values = [np.nanmean([row[key] for row in rows]) for rows in seeds.values()]
+            cells.append(_fmt(values, 3))
+        lines.append(f"| {LABELS[variant]} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def rliable_section(all_runs: dict[str, dict[str, dict[int, list[dict[str, float]]]]]) -> list[str]:
+    """IQM with stratified-bootstrap 95 % CIs and probability of improvement over the envs every variant finished."""
+    from rliable import library as rly
+    from rliable import metrics
+
+    variants = [v for v in VARIANTS if all(all_runs[env].get(v) for env in all_runs)]
+    envs = [env for env in all_runs if all(all_runs[env].get(v) for v in variants)]
+    if not envs or len(variants) < 2:
+        return ["Not enough finished runs for an aggregate yet."]
+    n_seeds = min(len(all_runs[env][v]) for env in envs for v in variants)
+
+    def scores(variant: str, kind: str) -> np.ndarray:
+        matrix = np.zeros((n_seeds, len(envs)))
+        for j, env in enumerate(envs):
+            for i, rows in enumerate(list(all_runs[env][variant].values())[:n_seeds]):
+                successes = [row["eval_success"] for row in rows]
+                matrix[i, j] = successes[-1] if kind == "final" else float(np.mean(successes))
+        return matrix
+
+    lines = [
+        f"Tasks: {', '.join(envs)}; {n_seeds} seeds per variant; score = evaluation success rate "
+        "(final: at the end of the budget; area: mean over the 25 evaluations, i.e. sample efficiency). "
+        "IQM and 95 % stratified-bootstrap confidence intervals from rliable (2,000 resamples).",
+        "",
+        "| variant | IQM final success [95 % CI] | IQM success area [95 % CI] |",
+        "|---|---|---|",
+    ]
+    estimates = {}
+    for kind in ("final", "area"):
+        score_dict = {v: scores(v, kind) for v in variants}
+        point, interval = rly.get_interval_estimates(score_dict, lambda x: np.array([metrics.aggregate_iqm(x)]), reps=2000)
+        estimates[kind] = (point, interval)
+    for v in variants:
+        cells = []
+        for kind in ("final", "area"):
+            point, interval = estimates[kind]
+            cells.append(f"{point[v][0]:.3f} [{interval[v][0][0]:.3f}, {interval[v][1][0]:.3f}]")
+        lines.append(f"| {LABELS[v]} | {cells[0]} | {cells[1]} |")
+    pairs = [(a, b) for a, b in [("replay", "plain"), ("warm", "plain"), ("both", "plain"), ("both", "replay"),
+                                 ("both", "warm"), ("replay", "trpo"), ("replay", "ppo"), ("plain", "trpo")]
+             if a in variants and b in variants]  # fmt: skip
+    if pairs:
+        lines += ["", "| P(X > Y), success area | estimate [95 % CI] |", "|---|---|"]
+        pair_scores = {f"{a},{b}": (scores(a, "area"), scores(b, "area")) for a, b in pairs}
+        point, interval = rly.get_interval_estimates(pair_scores, metrics.probability_of_improvement, reps=2000)
+        for a, b in pairs:
+            key = f"{a},{b}"
+            lines.append(
+                f"| {LABELS[a]} > {LABELS[b]} | {float(np.squeeze(point[key])):.2f} "
+                f"[{float(np.squeeze(interval[key][0])):.2f}, {float(np.squeeze(interval[key][1])):.2f}] |"
+            )
+    return lines
+
+
+def write_report(out: Path, docs: Path) -> None:
+    images = docs.parent / "images"
+    all_runs: dict[str, dict[str, dict[int, list[dict[str, float]]]]] = {}
+    body: list[str] = []
+    for env_id in BUDGETS:
+        runs = {variant: complete_runs(out, env_id, variant) for variant in VARIANTS}
+        if not any(runs.values()):
+            body += [f"### {env_id}", "", f"No finished runs yet (budget {BUDGETS[env_id]:,} steps).", ""]
+            continue
+        all_runs[env_id] = runs
+        seeds = sorted({s for v in runs.values() for s in v})
+        image = images / f"results_{env_id}.png"
+        figure(out, env_id, runs, image)
+        hours = sum(rows[-1]["train_seconds"] for v in runs.values() for rows in v.values()) / 3600
+        body += [
+            f"### {env_id}",
+            "",
+            f"Budget {BUDGETS[env_id]:,} env steps; seeds {', '.join(map(str, seeds))}; "
+            f"{hours:.2f} h of training in all (one CPU thread per run, two runs at a time).",
+            "",
+            f"![{env_id} learning curves](images/{image.name})",
+            "",
+            *tables(env_id, runs),
+            "",
+            "Per-update diagnostics (mean over each run's updates, then mean ± std over seeds):",
+            "",
+            *diagnostics_table(runs),
+            "",
+        ]
+    body += ["### Aggregate (rliable)", "", *rliable_section(all_runs), ""]
+    text = docs.read_text()
+    if BEGIN not in text or END not in text:
+        raise SystemExit(f"{docs} has no {BEGIN} ... {END} block to fill")
+    head, rest = text.split(BEGIN, 1)
+    _, tail = rest.split(END, 1)
+    docs.write_text(head + BEGIN + "\n" + "\n".join(body) + "\n" + END + tail)
+    print(f"wrote {docs} and {images}/results_*.png")
+
+
+# ---------------------------------------------------------------------------------------------- agents
+def evaluate_agent(folder: Path, env_id: str, episodes: int = AGENT_EPISODES, seed: int = AGENT_SEED) -> dict[str, float]:
+    """Deterministic success rate and return of an exported agent over ``episodes`` seeded episodes."""
+    from sb3_trpo_plus.cli import _load_trained, evaluate
+
+    model, env, _ = _load_trained("trpo_plus", env_id, str(folder), 1, False, seed, False)
+    result = evaluate(model, env, episodes)
+    env.close()
+    return result
+
+
+def export_agents(out: Path, envs: list[str], folder: Path) -> None:
+    """Copy the best finished TRPOPlus run of each env into rl-zoo's layout under ``folder``; record its success."""
+    from convergence import _hyperparameters
+
+    manifest_path = folder / "agents.json"
+    manifest: dict[str, Any] = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
+    for env_id in envs:
+        candidates = []
+        for variant in ("plain", "replay", "warm", "both"):
+            for seed, rows in complete_runs(out, env_id, variant).items():
+                candidates.append((rows[-1]["eval_success"], rows[-1]["eval_return"], variant, seed))
+        if not candidates:
+            print(f"{env_id}: no finished TRPOPlus run")
+            continue
+        success, _, variant, seed = max(candidates)
+        source = job_folder(out, env_id, variant, seed)
+        run = folder / "trpo_plus" / f"{env_id}_1"
+        (run / env_id).mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(source / "model.zip", run / f"{env_id}.zip")
+        params = _hyperparameters("trpo_plus", env_id, VARIANTS[variant][1])
+        config = {key: value for key, value in params.items() if key not in {"callback", "monitor_kwargs", "policy_kwargs"}}
+        if (source / "vecnormalize.pkl").exists():
+            shutil.copyfile(source / "vecnormalize.pkl", run / env_id / "vecnormalize.pkl")
+        (run / env_id / "config.yml").write_text(json.dumps(config, indent=1))  # JSON is YAML
+        result = evaluate_agent(folder, env_id)
+        manifest[env_id] = {
+            "variant": variant,
+            "seed": seed,
+            "timesteps": BUDGETS[env_id],
+            "study_eval_success": success,
+            "success_rate": result["success_rate"],
+            "mean_reward": round(result["mean_reward"], 3),
+            "episodes": AGENT_EPISODES,
+            "eval_seed": AGENT_SEED,
+            "platform": platform.platform(),
+        }
+        print(f"{env_id}: {variant} seed {seed}: success {result['success_rate']:.2f}, return {result['mean_reward']:.2f}")
+    manifest_path.write_text(json.dumps(manifest, indent=1) + "\n")

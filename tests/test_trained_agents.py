@@ -1,0 +1,32 @@
+"""The shipped agents (trained_agents/, exported by benchmarks/convergence.py agents) do what the docs say."""
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from sb3_trpo_plus.cli import TRAINED_AGENTS, _load_trained, evaluate
+
+ROOT = Path(__file__).resolve().parents[1]
+MANIFEST = json.loads((TRAINED_AGENTS / "agents.json").read_text()) if (TRAINED_AGENTS / "agents.json").exists() else {}
+
+
+def test_every_study_env_has_a_manifest_entry_or_none_yet() -> None:
+    assert TRAINED_AGENTS.is_dir(), "trained_agents/ is missing"
+    for env_id, entry in MANIFEST.items():
+        assert (TRAINED_AGENTS / "trpo_plus" / f"{env_id}_1" / f"{env_id}.zip").is_file(), env_id
+        assert entry["episodes"] == 20
+
+
+@pytest.mark.parametrize("env_id", sorted(MANIFEST))
+def test_trained_agent_reaches_its_documented_success_rate(env_id: str) -> None:
+    entry = MANIFEST[env_id]
+    docs = (ROOT / "docs" / "results.md").read_text()
+    row = re.search(rf"^\| `{re.escape(env_id)}` \|.*$", docs, flags=re.MULTILINE)
+    assert row is not None, f"docs/results.md has no trained-agent row for {env_id}"
+    assert f"{entry['success_rate']:.2f}" in row.group(0)
+    model, env, _ = _load_trained("trpo_plus", env_id, str(TRAINED_AGENTS), 1, False, entry["eval_seed"], False)
+    result = evaluate(model, env, entry["episodes"])
+    env.close()
+    assert result["success_rate"] >= entry["success_rate"], result
