@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from convergence import BUDGETS, EVAL_EPISODES, TARGETS, VARIANTS, job_folder, read_progress
+from convergence import BUDGETS, EVAL_EPISODES, ROOT, TARGETS, VARIANTS, job_folder, read_progress
 
 BEGIN, END = "<!-- convergence-report:begin -->", "<!-- convergence-report:end -->"
 LABELS = {
@@ -216,6 +216,7 @@ def write_report(out: Path, docs: Path) -> None:
             "",
         ]
     body += ["### Aggregate (rliable)", "", *rliable_section(all_runs), ""]
+    body += agents_section(ROOT / "trained_agents" / "agents.json")
     text = docs.read_text()
     if BEGIN not in text or END not in text:
         raise SystemExit(f"{docs} has no {BEGIN} ... {END} block to fill")
@@ -223,6 +224,34 @@ def write_report(out: Path, docs: Path) -> None:
     _, tail = rest.split(END, 1)
     docs.write_text(head + BEGIN + "\n" + "\n".join(body) + "\n" + END + tail)
     print(f"wrote {docs} and {images}/results_*.png")
+
+
+def agents_section(manifest_path: Path) -> list[str]:
+    """Table of the shipped agents (tests/test_trained_agents.py checks each row against a fresh evaluation)."""
+    if not manifest_path.exists():
+        return []
+    manifest = json.loads(manifest_path.read_text())
+    lines = [
+        "### Trained agents",
+        "",
+        f"`trained_agents/trpo_plus/<env>_1/`: the best TRPOPlus run of each env (highest final evaluation success),"
+        f" re-evaluated on {AGENT_EPISODES} deterministic episodes from reset seed {AGENT_SEED} (held out from"
+        " training and from the study's evaluations). `trpo-plus enjoy --env <env>` runs them (it falls back to"
+        " `trained_agents/` when `logs/` has no run); `trpo-plus record-video --env <env>` films them.",
+        "",
+        "| env | variant | seed | steps | success rate | mean return | video |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for env_id, entry in sorted(manifest.items()):
+        video = f"[mp4]({entry['video']})" if "video" in entry else "—"
+        lines.append(
+            f"| `{env_id}` | {LABELS[entry['variant']]} | {entry['seed']} | {entry['timesteps']:,} | "
+            f"{entry['success_rate']:.2f} | {entry['mean_reward']:.2f} | {video} |"
+        )
+    for env_id, entry in sorted(manifest.items()):
+        if "video" in entry:
+            lines += ["", f"{env_id}:", "", f'<video src="{entry["video"]}" controls loop muted width="360"></video>']
+    return [*lines, ""]
 
 
 # ---------------------------------------------------------------------------------------------- agents
@@ -273,4 +302,9 @@ def export_agents(out: Path, envs: list[str], folder: Path) -> None:
             "platform": platform.platform(),
         }
         print(f"{env_id}: {variant} seed {seed}: success {result['success_rate']:.2f}, return {result['mean_reward']:.2f}")
+        from sb3_trpo_plus.cli import record_video
+
+        video = ROOT / "docs" / "videos" / f"{env_id}.mp4"
+        record_video(["--env", env_id, "-f", str(folder), "--exp-id", "1", "--seed", str(AGENT_SEED), "-o", str(video)])
+        manifest[env_id]["video"] = f"videos/{video.name}"
     manifest_path.write_text(json.dumps(manifest, indent=1) + "\n")

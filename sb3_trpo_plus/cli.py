@@ -238,7 +238,7 @@ def main_job(argv: Sequence[str]) -> dict[str, Any]:
     """``trpo-plus main``: train with the zoo hyperparameters, then evaluate, plot and film the result."""
     _headless()
     parser = argparse.ArgumentParser(prog="trpo-plus main")
-    parser.add_argument("--env", default="Reacher2D-v0")
+    parser.add_argument("--env", default="Reacher2D-v1")
     parser.add_argument("--algo", default="trpo_plus", choices=ALGO_CHOICES)
     parser.add_argument("--steps", type=int, default=None, help="training budget (default: the YAML's n_timesteps)")
     parser.add_argument("--seed", type=int, default=0)

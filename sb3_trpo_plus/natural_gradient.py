@@ -163,8 +163,11 @@ def detached_distribution(distribution: Distribution) -> Distribution:
 def _distribution_parameters(distribution: Distribution) -> tuple[th.Tensor, Callable[[th.Tensor], th.Tensor]]:
     """Distribution parameters per sample, shape ``(N, D)``, and the Fisher metric ``M`` in that space.
 
-    The returned ``metric(u)`` applies ``M / N`` sample-wise to ``u`` of shape ``(N, D)``; the
-    Fisher information of the *mean* KL over the batch is then ``J^T (M / N) J``.
+    The returned ``metric(u)`` applies ``M / n`` sample-wise to ``u`` of shape ``(N, D)``, where ``n`` is the
+    number of terms SB3's ``kl_divergence(p, q).mean()`` averages (sb3-contrib TRPO's KL): for the
+    element-wise distributions (diagonal Gaussian, gSDE, squashed Gaussian, Bernoulli) the KL comes per
+    action dimension, so ``n = N * D`` and ``target_kl`` bounds the KL *per action dimension*; for
+    (multi-)categorical ones it comes per sample, ``n = N``. The Hessian of that mean KL is ``J^T (M / n) J``.
     """
     if isinstance(distribution, CategoricalDistribution | MultiCategoricalDistribution):
         dists = distribution.distribution if isinstance(distribution.distribution, list) else [distribution.distribution]
@@ -184,7 +187,7 @@ def _distribution_parameters(distribution: Distribution) -> tuple[th.Tensor, Cal
     if isinstance(distribution, BernoulliDistribution):
         logits = distribution.distribution.logits
         probs = distribution.distribution.probs.detach()
-        weight = probs * (1.0 - probs) / logits.shape[0]
+        weight = probs * (1.0 - probs) / logits.numel()  # SB3's KL is per dimension, averaged over N * D
         return logits, lambda u: weight * u
     normal = distribution.distribution
     if isinstance(normal, th.distributions.Normal):
@@ -192,8 +195,8 @@ def _distribution_parameters(distribution: Distribution) -> tuple[th.Tensor, Cal
         mean = normal.loc
         log_std = normal.scale.log() if normal.scale.shape == mean.shape else normal.scale.log().expand_as(mean)
         std = normal.scale.detach().expand_as(mean)
-        n = mean.shape[0]
-        weight = th.cat([std.pow(-2), th.full_like(mean, 2.0)], dim=1) / n
+        # SB3's KL of a diagonal Gaussian is per action dimension and sb3-contrib averages it over N * D
+        weight = th.cat([std.pow(-2), th.full_like(mean, 2.0)], dim=1) / mean.numel()
         return th.cat([mean, log_std], dim=1), lambda u: weight * u
     raise TypeError(f"No analytic Fisher information for distribution {type(distribution).__name__}")
 

@@ -38,7 +38,7 @@ def _zero_start_solver(matrix_vector_dot_fn, b, max_iter=10, residual_tol=1e-10)
         th.randn_like = randn_like  # type: ignore[assignment]
 
 
-@pytest.mark.parametrize("env_id", ["Pendulum-v1", "CartPole-v1"])
+@pytest.mark.parametrize("env_id", ["Pendulum-v1", "CartPole-v1", "Reacher3D-v0"])
 def test_update_matches_sb3_contrib_trpo_exactly_with_the_same_cg_start(env_id: str, monkeypatch) -> None:
     monkeypatch.setattr(sb3_contrib_trpo, "conjugate_gradient_solver", _zero_start_solver)
     initial, trpo, trpo_model = _train_once(TRPO, env_id)
@@ -55,7 +55,7 @@ def test_update_matches_sb3_contrib_trpo_exactly_with_the_same_cg_start(env_id: 
     assert moved > 1e-4, "the update must move the parameters, or the comparison proves nothing"
 
 
-@pytest.mark.parametrize("env_id", ["Pendulum-v1", "CartPole-v1"])
+@pytest.mark.parametrize("env_id", ["Pendulum-v1", "CartPole-v1", "Reacher3D-v0"])
 def test_parameters_match_unmodified_sb3_contrib_trpo(env_id: str) -> None:
     _, trpo, _ = _train_once(TRPO, env_id)
     _, plus, _ = _train_once(TRPOPlus, env_id)

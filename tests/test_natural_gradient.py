@@ -97,7 +97,11 @@ class _DistributionParameters(nn.Module):
 
 
 def _explicit_fisher(policy: ActorCriticPolicy, obs: th.Tensor) -> th.Tensor:
-    """Hessian of the mean KL(pi_theta0 || pi_theta) at theta0, built entry by entry with autograd."""
+    """Hessian at theta0 of sb3-contrib's KL, ``kl_divergence(pi_theta, pi_theta0).mean()``, entry by entry.
+
+    torch's KL of a ``Normal`` is per action dimension, so that mean runs over samples *and* dimensions;
+    a ``Categorical``'s is per sample.
+    """
     params = actor_parameters(policy)
     names = {id(p): n for n, p in policy.named_parameters()}
     keys = [f"policy.{names[id(p)]}" for p in params]
@@ -110,8 +114,7 @@ def _explicit_fisher(policy: ActorCriticPolicy, obs: th.Tensor) -> th.Tensor:
     def kl(flat: th.Tensor) -> th.Tensor:
         chunks = th.split(flat, [int(np.prod(s)) for s in shapes])
         new = functional_call(wrapper, {k: c.view(s) for k, c, s in zip(keys, chunks, shapes, strict=True)}, (obs,))
-        value = th.distributions.kl_divergence(anchor, new)
-        return (value.sum(-1) if value.dim() > 1 else value).mean()
+        return th.distributions.kl_divergence(new, anchor).mean()  # at theta0 the Hessian of either direction
 
     return th.autograd.functional.hessian(kl, theta0)
 

@@ -30,3 +30,13 @@ def test_trained_agent_reaches_its_documented_success_rate(env_id: str) -> None:
     result = evaluate(model, env, entry["episodes"])
     env.close()
     assert result["success_rate"] >= entry["success_rate"], result
+
+
+@pytest.mark.parametrize("env_id", sorted(MANIFEST)[:1])
+def test_enjoy_finds_the_shipped_agent_without_a_folder(env_id: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from sb3_trpo_plus.cli import _default_folder
+
+    monkeypatch.chdir(tmp_path)  # no ./logs here
+    assert _default_folder("trpo_plus", env_id) == str(TRAINED_AGENTS)
+    (tmp_path / "logs" / "trpo_plus" / f"{env_id}_1").mkdir(parents=True)
+    assert _default_folder("trpo_plus", env_id) == "logs"
