@@ -37,6 +37,8 @@ VEC_ENVS: dict[str, tuple[type, dict | None]] = {
     "SubprocVecEnv": (SubprocVecEnv, {"start_method": "forkserver"}),
     "Sharded-1-worker": (ShardedSubprocVecEnv, {"n_workers": 1}),
     "Sharded-2-workers": (ShardedSubprocVecEnv, {"n_workers": 2}),
+    # the learner process steps one shard itself: 2 workers = 1 worker process + the learner
+    "Sharded-2-workers-in-process": (ShardedSubprocVecEnv, {"n_workers": 2, "in_process": True}),
 }
 
 
@@ -66,6 +68,7 @@ def main() -> None:
     parser.add_argument("--counts", type=int, nargs="+", default=list(COUNTS), help="numbers of envs")
     parser.add_argument("--vec-envs", nargs="+", default=list(VEC_ENVS), choices=list(VEC_ENVS))
     parser.add_argument("--out", default="benchmarks/results")
+    parser.add_argument("--name", default=None, help="file stem of the results (default: scaling[_<counts>])")
     args = parser.parse_args()
     th.set_num_threads(1)
     out = Path(args.out)
@@ -96,7 +99,7 @@ def main() -> None:
                 f"{row['speedup_vs_one_worker']:.2f} | {row['ratio_to_raw_env_step']:.2f} |"
             )
         results["envs"][env_id] = {"raw_env_step_s": raw, "rows": rows}
-    stem = "scaling" if args.counts == list(COUNTS) else "scaling_" + "_".join(map(str, args.counts))
+    stem = args.name or ("scaling" if args.counts == list(COUNTS) else "scaling_" + "_".join(map(str, args.counts)))
     (out / f"{stem}.json").write_text(json.dumps(results, indent=1))
     plot(results, out / f"{stem}.png")
     print(f"\nraw results: {out / f'{stem}.json'}, plot: {out / f'{stem}.png'}")

@@ -5,6 +5,8 @@ on a 2-core machine 16 processes fight for 2 cores. ``ShardedSubprocVecEnv`` spl
 into ``n_workers`` shards, each a ``DummyVecEnv`` in its own process, so a step costs one round trip per
 worker and the workers step their shards in parallel. Observations, rewards, dones and infos come back
 in env order, with SB3's auto-reset and ``terminal_observation`` semantics (those of ``DummyVecEnv``).
+With ``in_process=True`` the learner process steps the last shard itself, as the thesis' master process
+sampled too: on a 2-core machine, 2 workers are then one worker process plus the learner.
 """
 
 from __future__ import annotations
@@ -20,53 +22,86 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 
+def _handle(venv: DummyVecEnv, command: str, data: Any) -> Any:
+    """Execute one command on a shard; the reply to send back (the worker loop and the in-process shard share it)."""
+    if command == "step":
+        venv.step_async(data)
+        return venv.step_wait()
+    if command == "reset":
+        seeds, options = data
+        venv._seeds, venv._options = seeds, options
+        return venv.reset(), venv.reset_infos
+    if command == "get_images":
+        return venv.get_images()
+    if command == "get_attr":
+        return venv.get_attr(*data)
+    if command == "set_attr":
+        venv.set_attr(*data)
+        return None
+    if command == "env_method":
+        name, indices, args, kwargs = data
+        return venv.env_method(name, *args, indices=indices, **kwargs)
+    if command == "env_is_wrapped":
+        return venv.env_is_wrapped(*data)
+    if command == "spaces":
+        return venv.observation_space, venv.action_space, venv.render_mode
+    raise NotImplementedError(f"ShardedSubprocVecEnv worker: unknown command {command!r}")
+
+
 def _worker(remote: Connection, parent_remote: Connection, env_fns: CloudpickleWrapper) -> None:
     parent_remote.close()
     venv = DummyVecEnv(env_fns.var)
     try:
         while True:
             command, data = remote.recv()
-            if command == "step":
-                venv.step_async(data)
-                remote.send(venv.step_wait())
-            elif command == "reset":
-                seeds, options = data
-                venv._seeds, venv._options = seeds, options
-                remote.send((venv.reset(), venv.reset_infos))
-            elif command == "get_images":
-                remote.send(venv.get_images())
-            elif command == "get_attr":
-                remote.send(venv.get_attr(*data))
-            elif command == "set_attr":
-                venv.set_attr(*data)
-                remote.send(None)
-            elif command == "env_method":
-                name, indices, args, kwargs = data
-                remote.send(venv.env_method(name, *args, indices=indices, **kwargs))
-            elif command == "env_is_wrapped":
-                remote.send(venv.env_is_wrapped(*data))
-            elif command == "spaces":
-                remote.send((venv.observation_space, venv.action_space, venv.render_mode))
-            elif command == "close":
+            if command == "close":
                 venv.close()
                 remote.close()
                 break
-            else:
-                raise NotImplementedError(f"ShardedSubprocVecEnv worker: unknown command {command!r}")
+            remote.send(_handle(venv, command, data))
     except (KeyboardInterrupt, EOFError):
         pass
 
 
+class _InProcessShard:
+    """A shard stepped by the learner process itself, behind the same send / recv interface as a pipe."""
+
+    def __init__(self, env_fns: Sequence[Callable[[], gym.Env]]):
+        self.venv = DummyVecEnv(list(env_fns))
+        self._reply: Any = None
+
+    def send(self, message: tuple[str, Any]) -> None:
+        command, data = message
+        if command == "close":
+            self.venv.close()
+        else:
+            self._reply = _handle(self.venv, command, data)
+
+    def recv(self) -> Any:
+        reply, self._reply = self._reply, None
+        return reply
+
+    def close(self) -> None:
+        pass
+
+
 class ShardedSubprocVecEnv(VecEnv):
-    """``n_workers`` processes, each stepping ``len(env_fns) / n_workers`` environments.
+    """``n_workers`` workers, each stepping ``len(env_fns) / n_workers`` environments.
 
     :param env_fns: environment constructors (as for ``SubprocVecEnv``)
-    :param n_workers: number of worker processes (default: ``os.cpu_count()``, at most ``len(env_fns)``)
+    :param n_workers: number of workers (default: ``os.cpu_count()``, at most ``len(env_fns)``)
     :param start_method: multiprocessing start method (default: forkserver where available, as SB3)
+    :param in_process: the learner process is one of the workers: it steps the last shard itself while
+        the ``n_workers - 1`` worker processes step theirs (one process fewer, and the learner's core
+        works during the step instead of waiting). ``n_workers=1, in_process=True`` is a ``DummyVecEnv``.
     """
 
     def __init__(
-        self, env_fns: Sequence[Callable[[], gym.Env]], n_workers: int | None = None, start_method: str | None = None
+        self,
+        env_fns: Sequence[Callable[[], gym.Env]],
+        n_workers: int | None = None,
+        start_method: str | None = None,
+        in_process: bool = False,
     ):
         n_envs = len(env_fns)
         if n_envs < 1:
@@ -80,8 +115,12 @@ class ShardedSubprocVecEnv(VecEnv):
         bounds = np.linspace(0, n_envs, n_workers + 1).round().astype(int)
         self._shards = [list(range(bounds[i], bounds[i + 1])) for i in range(n_workers)]
         self._splits = bounds[1:-1]
-        self.remotes, self.processes = [], []
-        for shard in self._shards:
+        self.remotes: list[Any] = []
+        self.processes = []
+        for index, shard in enumerate(self._shards):
+            if in_process and index == len(self._shards) - 1:  # last: its step runs after the others were sent
+                self.remotes.append(_InProcessShard([env_fns[i] for i in shard]))
+                continue
             remote, work_remote = context.Pipe()
             fns = CloudpickleWrapper([env_fns[i] for i in shard])
             process = context.Process(target=_worker, args=(work_remote, remote, fns), daemon=True)  # type: ignore[attr-defined]
@@ -98,6 +137,10 @@ class ShardedSubprocVecEnv(VecEnv):
     @property
     def n_workers(self) -> int:
         return len(self.remotes)
+
+    @property
+    def in_process(self) -> bool:
+        return isinstance(self.remotes[-1], _InProcessShard)
 
     def step_async(self, actions: np.ndarray) -> None:
         for remote, chunk in zip(self.remotes, np.split(np.asarray(actions), self._splits), strict=True):

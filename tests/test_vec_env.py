@@ -9,14 +9,15 @@ from sb3_trpo_plus import TRPOPlus
 from sb3_trpo_plus.vec_env import ShardedSubprocVecEnv
 
 
+@pytest.mark.parametrize("in_process", [False, True], ids=["processes", "in-process"])
 @pytest.mark.parametrize("n_workers", [1, 2, 3])
-def test_same_transitions_as_dummy_vec_env(n_workers: int) -> None:
+def test_same_transitions_as_dummy_vec_env(n_workers: int, in_process: bool) -> None:
     dummy = make_vec_env("Reacher2D-v0", n_envs=5, seed=3)
-    sharded = make_vec_env(
-        "Reacher2D-v0", n_envs=5, seed=3, vec_env_cls=ShardedSubprocVecEnv, vec_env_kwargs=dict(n_workers=n_workers)
-    )
+    kwargs = dict(n_workers=n_workers, in_process=in_process)
+    sharded = make_vec_env("Reacher2D-v0", n_envs=5, seed=3, vec_env_cls=ShardedSubprocVecEnv, vec_env_kwargs=kwargs)
     try:
-        assert sharded.n_workers == n_workers
+        assert sharded.n_workers == n_workers and sharded.in_process == in_process
+        assert len(sharded.processes) == n_workers - in_process
         np.testing.assert_array_equal(dummy.reset(), sharded.reset())
         rng = np.random.default_rng(0)
         for _ in range(120):  # more than two 50-step episodes: auto-resets and terminal observations
