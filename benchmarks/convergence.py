@@ -107,7 +107,7 @@ def _atomic_replace(write: Any, path: Path) -> None:
 def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None:
     """Train one (env, variant, seed) to ``steps`` in chunks, resuming from the last saved chunk."""
     import torch as th
-    from stable_baselines3.common.callbacks import BaseCallback
+    from grasper_reward import EpisodeStats  # benchmarks/ is on sys.path when this file runs as a script
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -142,19 +142,6 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False)
     target_kl = float(getattr(model, "target_kl", None) or float("nan"))
 
-    class Recorder(BaseCallback):
-        """Finished training episodes of the chunk."""
-
-        def __init__(self) -> None:
-            super().__init__()
-            self.episodes: list[tuple[float, float]] = []
-
-        def _on_step(self) -> bool:
-            for info, done in zip(self.locals["infos"], self.locals["dones"], strict=True):
-                if done and "episode" in info:
-                    self.episodes.append((float(info["episode"]["r"]), float(info.get("is_success", False))))
-            return True
-
     diagnostics: dict[str, list[float]] = {name: [] for name in DIAGNOSTICS}
     original_train = model.train
 
@@ -171,7 +158,7 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
     seconds = rows[-1]["train_seconds"] if rows else 0.0
     resumed = 1.0 if rows else 0.0
     while done < steps:
-        recorder = Recorder()
+        recorder = EpisodeStats()
         start = time.perf_counter()
         model.learn(min(chunk, steps - done), callback=recorder, reset_num_timesteps=False)
         seconds += time.perf_counter() - start
@@ -179,8 +166,8 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
         if normalize:
             eval_env.obs_rms = env.obs_rms  # type: ignore[attr-defined]
         eval_return, eval_success = evaluate(model, eval_env, EVAL_EPISODES)
-        returns = [r for r, _ in recorder.episodes]
-        successes = [s for _, s in recorder.episodes]
+        returns = [r for r, _, _ in recorder.episodes]
+        successes = [float(s) for _, s, _ in recorder.episodes]
         means = {name: float(np.mean(v)) if v else float("nan") for name, v in diagnostics.items()}
         kls = list(diagnostics["kl"])
         for values in diagnostics.values():
@@ -213,17 +200,11 @@ def _append_row(path: Path, row: dict[str, Any]) -> None:
 
 def evaluate(model: Any, env: Any, episodes: int) -> tuple[float, float]:
     """Deterministic return and success rate (final step) over ``episodes`` episodes from reset seed ``EVAL_SEED``."""
+    from sb3_trpo_plus.cli import evaluate as evaluate_policy
+
     env.seed(EVAL_SEED)
-    obs = env.reset()
-    returns: list[float] = []
-    successes: list[float] = []
-    while len(returns) < episodes:
-        action, _ = model.predict(obs, deterministic=True)
-        obs, _, dones, infos = env.step(action)
-        if dones[0]:
-            returns.append(float(infos[0]["episode"]["r"]))
-            successes.append(float(infos[0].get("is_success", False)))
-    return float(np.mean(returns)), float(np.mean(successes))
+    result = evaluate_policy(model, env, episodes)
+    return result["mean_reward"], result["success_rate"]
 
 
 # ---------------------------------------------------------------------------------------------- scheduler
