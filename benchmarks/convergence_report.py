@@ -23,6 +23,8 @@ LABELS = {
     "both": "TRPOPlus + both",
     "trpo": "sb3-contrib TRPO",
     "ppo": "SB3 PPO",
+    "replay_cg25": "TRPOPlus + replay, 25 CG iterations",
+    "both_cg5": "TRPOPlus + both, 5 CG iterations",
 }
 AGENT_EPISODES = 20
 AGENT_SEED = 20_000  # held out from training (seeds < 100,000 + n_envs) and from the study's evaluations (10,000)
@@ -273,7 +275,7 @@ def export_agents(out: Path, envs: list[str], folder: Path) -> None:
     manifest: dict[str, Any] = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
     for env_id in envs:
         candidates = []
-        for variant in ("plain", "replay", "warm", "both"):
+        for variant in ("plain", "replay", "warm", "both", "replay_cg25", "both_cg5"):
             for seed, rows in complete_runs(out, env_id, variant).items():
                 candidates.append((rows[-1]["eval_success"], rows[-1]["eval_return"], variant, seed))
         if not candidates:
