@@ -69,6 +69,8 @@ DIAGNOSTICS = {
     "line_search_success": "train/is_line_search_success",
     "line_search_steps": "train/line_search_steps",
     "cg_residual": "train/cg_residual",
+    "cg_relative_residual": "train/cg_relative_residual",
+    "step_gradient_cosine": "train/step_gradient_cosine",
     "warm_start_cosine": "train/cg_warm_start_cosine",
     "replay_ess": "train/replay_ess",
     "std": "train/std",
@@ -194,12 +196,28 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
 
 
 def _append_row(path: Path, row: dict[str, Any]) -> None:
+    """Append a row; a CSV written by an older version (fewer columns) is first rewritten with blanks."""
+    cell = {key: ("" if isinstance(v, float) and not np.isfinite(v) else v) for key, v in row.items()}
+    if path.exists():
+        with path.open() as file:
+            header = next(csv.reader(file), [])
+        if header != COLUMNS:
+            with path.open() as file:
+                old = list(csv.DictReader(file))
+
+            def rewrite(temporary: Path) -> None:
+                with temporary.open("w", newline="") as file:
+                    writer = csv.DictWriter(file, fieldnames=COLUMNS, restval="", extrasaction="ignore")
+                    writer.writeheader()
+                    writer.writerows(old)
+
+            _atomic_replace(rewrite, path)
     new = not path.exists()
     with path.open("a", newline="") as file:
         writer = csv.DictWriter(file, fieldnames=COLUMNS)
         if new:
             writer.writeheader()
-        writer.writerow({key: ("" if isinstance(v, float) and not np.isfinite(v) else v) for key, v in row.items()})
+        writer.writerow(cell)
 
 
 def evaluate(model: Any, env: Any, episodes: int) -> tuple[float, float]:

@@ -121,14 +121,15 @@ def tables(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]) -> l
 
 
 def diagnostics_table(runs: dict[str, dict[int, list[dict[str, float]]]]) -> list[str]:
-    keys = ["kl", "kl_overshoot", "line_search_success", "line_search_steps", "cg_residual", "warm_start_cosine", "replay_ess"]
+    keys = ["kl_overshoot", "line_search_steps", "cg_residual", "cg_relative_residual", "step_gradient_cosine",
+            "warm_start_cosine", "replay_ess"]  # fmt: skip
     lines = ["| variant | " + " | ".join(keys) + " |", "|---" * (len(keys) + 1) + "|"]
     for variant, seeds in runs.items():
         if not seeds:
             continue
         cells = []
         for key in keys:
-            values = [np.nanmean([row[key] for row in rows]) for rows in seeds.values()]
+            values = [np.nanmean([row.get(key, np.nan) for row in rows]) for rows in seeds.values()]
             cells.append(_fmt(values, 3))
         lines.append(f"| {LABELS[variant]} | " + " | ".join(cells) + " |")
     return lines

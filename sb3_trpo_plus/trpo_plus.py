@@ -571,6 +571,8 @@ class TRPOPlus(TRPO):
         self._cg_stats = {
             "cg_iterations": cg.iterations,
             "cg_residual": cg.residual_norm,
+            "cg_relative_residual": cg.residual_norm / max(float(th.linalg.vector_norm(gradient)), 1e-12),
+            "step_gradient_cosine": _cosine(gradient, direction),
             "fisher_products": cg.matvecs + (0 if cg.quadratic_form > 0 else 1),
             "cg_warm_start_cosine": _cosine(warm_start, direction) if warm_start is not None else 0.0,
             "objective_before": float(objective.detach()),
@@ -665,6 +667,8 @@ class TRPOPlus(TRPO):
         record("train/n_updates", self._n_updates, exclude="tensorboard")
         record("train/cg_iterations", stats["cg_iterations"])
         record("train/cg_residual", stats["cg_residual"])
+        record("train/cg_relative_residual", stats["cg_relative_residual"])
+        record("train/step_gradient_cosine", stats["step_gradient_cosine"])
         record("train/fisher_vector_products", stats["fisher_products"])
         record("train/cg_warm_start_cosine", stats["cg_warm_start_cosine"])
         record("train/line_search_steps", line_search.steps)
