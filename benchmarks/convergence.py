@@ -140,6 +140,7 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
     if rows:
         env = VecNormalize.load(str(stats_path), venv) if normalize else venv
         model = algo_class.load(model_path, env=env, device="cpu")
+        model.__dict__.pop("train", None)  # checkpoints saved before 2026-11-22 03:50 pickled the wrapper below
     else:
         env = VecNormalize(venv, gamma=params.get("gamma", 0.99)) if normalize else venv
         model = algo_class(policy, env, seed=seed, device="cpu", verbose=0, **params)
@@ -187,7 +188,7 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
             "resumed": resumed,
         }  # fmt: skip
         resumed = 0.0
-        _atomic_replace(model.save, model_path)
+        _atomic_replace(lambda p: model.save(p, exclude=["train"]), model_path)  # not the wrapper of train()
         if normalize:
             _atomic_replace(lambda p: env.save(str(p)), stats_path)  # type: ignore[attr-defined]
         _append_row(folder / "progress.csv", row)

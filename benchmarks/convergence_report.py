@@ -286,7 +286,11 @@ def export_agents(out: Path, envs: list[str], folder: Path) -> None:
         source = job_folder(out, env_id, variant, seed)
         run = folder / "trpo_plus" / f"{env_id}_1"
         (run / env_id).mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(source / "model.zip", run / f"{env_id}.zip")
+        from sb3_trpo_plus import TRPOPlus
+
+        model = TRPOPlus.load(source / "model.zip", device="cpu")
+        model.__dict__.pop("train", None)  # the study's wrapper of train(), pickled by runs before 2026-11-22 03:50
+        model.save(run / f"{env_id}.zip", exclude=["train", "rollout_memory"])  # small: no replay memory
         params = _hyperparameters("trpo_plus", env_id, VARIANTS[variant][1])
         config = {key: value for key, value in params.items() if key not in {"callback", "monitor_kwargs", "policy_kwargs"}}
         if (source / "vecnormalize.pkl").exists():
