@@ -127,6 +127,10 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
     done = int(rows[-1]["timesteps"]) if rows else 0
     if done >= steps:
         return
+    if rows and not (folder / "model.zip").exists():  # a committed CSV of an unfinished run, without its checkpoint
+        print(f"{folder}: no checkpoint to resume from, starting again", flush=True)
+        (folder / "progress.csv").unlink()
+        rows, done = [], 0
     algo, overrides = VARIANTS[variant]
     params = _hyperparameters(algo, env_id, overrides)
     n_envs, normalize = int(params.pop("n_envs", 1)), params.pop("normalize", False)
