@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from convergence import BUDGETS, EVAL_EPISODES, ROOT, TARGETS, VARIANTS, job_folder, read_progress
+from convergence import BUDGETS, EVAL_EPISODES, ROOT, STUDY_VARIANTS, TARGETS, VARIANTS, job_folder, read_progress
 
 BEGIN, END = "<!-- convergence-report:begin -->", "<!-- convergence-report:end -->"
 LABELS = {
@@ -140,10 +140,10 @@ def rliable_section(all_runs: dict[str, dict[str, dict[int, list[dict[str, float
     from rliable import library as rly
     from rliable import metrics
 
-    variants = [v for v in VARIANTS if all(all_runs[env].get(v) for env in all_runs)]
-    envs = [env for env in all_runs if all(all_runs[env].get(v) for v in variants)]
-    if not envs or len(variants) < 2:
-        return ["Not enough finished runs for an aggregate yet."]
+    variants = STUDY_VARIANTS  # the extra diagnosis variants ran on one env only
+    envs = [env for env in all_runs if min(len(all_runs[env].get(v, {})) for v in variants) >= 5]  # finished envs only
+    if not envs:
+        return ["No env has 5 finished seeds of every variant yet."]
     n_seeds = min(len(all_runs[env][v]) for env in envs for v in variants)
 
     def scores(variant: str, kind: str) -> np.ndarray:
