@@ -11,6 +11,5 @@ class Reacher3DEnv(NearTargetBonus, reacher3d_v0.Reacher3DEnv):
         reacher3d_v0.Reacher3DEnv.__doc__ or "",
         "Reacher3D",
         "palm",
-        "Measured (docs/results.md, 5 seeds): every\n"
-        "      TRPO variant, and PPO, ends 1M steps at 0.97-1.00 success.",
+        "Measured (docs/results.md, 5 seeds): every\n      TRPO variant, and PPO, ends 1M steps at 0.97-1.00 success.",
     )
