@@ -54,7 +54,7 @@ def _curve(rows: list[dict[str, float]], key: str, grid: np.ndarray) -> np.ndarr
     return np.interp(grid, steps, np.array([start] + [row[key] for row in rows]))
 
 
-def figure(out: Path, env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]], path: Path) -> None:
+def figure(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -201,7 +201,7 @@ def write_report(out: Path, docs: Path) -> None:
         all_runs[env_id] = runs
         seeds = sorted({s for v in runs.values() for s in v})
         image = images / f"results_{env_id}.png"
-        figure(out, env_id, runs, image)
+        figure(env_id, runs, image)
         hours = sum(rows[-1]["train_seconds"] for v in runs.values() for rows in v.values()) / 3600
         body += [
             f"### {env_id}",
