@@ -39,6 +39,7 @@ BUDGETS = {
     "Reacher3D-v1": 1_000_000,
     "WallReacher3D-v0": 2_000_000,
     "Grasper3D-v0": 5_000_000,
+    "Grasper3D-v1": 5_000_000,
 }
 TARGETS = {
     "Reacher2D-v0": 0.9,
@@ -47,6 +48,7 @@ TARGETS = {
     "Reacher3D-v1": 0.9,
     "WallReacher3D-v0": 0.8,
     "Grasper3D-v0": 0.9,
+    "Grasper3D-v1": 0.9,
 }
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "plain": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": False}),

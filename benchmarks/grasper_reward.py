@@ -99,9 +99,11 @@ def main() -> None:
         print(json.dumps(log["chunks"][-1]), flush=True)
 
 
-def diagnose(algo: type, model_path: Path, stats_path: Path, reward_mode: str, episodes: int = 10) -> None:
+def diagnose(
+    algo: type, model_path: Path, stats_path: Path, reward_mode: str, episodes: int = 10, env_id: str = "Grasper3D-v0"
+) -> None:
     """Deterministic episodes of the saved policy: where the grip is, how the claw is held, what it touches."""
-    venv = make_vec_env("Grasper3D-v0", n_envs=1, seed=123, env_kwargs={"reward_mode": reward_mode})
+    venv = make_vec_env(env_id, n_envs=1, seed=123, env_kwargs={"reward_mode": reward_mode})
     env = VecNormalize.load(str(stats_path), venv)
     env.training, env.norm_reward = False, False
     model = algo.load(model_path, env=env)

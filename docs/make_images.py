@@ -14,19 +14,24 @@ import gymnasium as gym
 import numpy as np
 from PIL import Image
 
-import grasp_envs
 from grasp_envs.scripted import SCRIPTED_POLICIES
 
-STEPS = {"Reacher2D-v0": 10, "Reacher3D-v0": 20, "Grasper3D-v0": 45, "WallReacher3D-v0": 25}
+STEPS = {  # the envs with a picture in docs/environments.md (the v1 reachers look like v0)
+    "Reacher2D-v0": 10,
+    "Reacher3D-v0": 20,
+    "Grasper3D-v0": 45,
+    "Grasper3D-v1": 84,
+    "WallReacher3D-v0": 25,
+}
 
 
 def main() -> None:
     out = Path(__file__).parent / "images"
     out.mkdir(exist_ok=True)
-    for env_id in grasp_envs.ENV_IDS:
+    for env_id, steps in STEPS.items():
         env = gym.make(env_id, render_mode="rgb_array", width=480, height=360)
         env.reset(seed=2)
-        for _ in range(STEPS[env_id]):
+        for _ in range(steps):
             env.step(SCRIPTED_POLICIES[env_id](env.unwrapped))
         frame = np.asarray(env.render())
         Image.fromarray(frame).save(out / f"{env_id}.png")

@@ -13,13 +13,23 @@ import multiprocessing.forkserver
 from gymnasium.envs.registration import register, registry
 
 from grasp_envs.grasper3d_v0 import Grasper3DEnv
+from grasp_envs.grasper3d_v1 import Grasper3DEnv as Grasper3DEnvV1
 from grasp_envs.reacher2d_v0 import Reacher2DEnv
 from grasp_envs.reacher2d_v1 import Reacher2DEnv as Reacher2DEnvV1
 from grasp_envs.reacher3d_v0 import Reacher3DEnv
 from grasp_envs.reacher3d_v1 import Reacher3DEnv as Reacher3DEnvV1
 from grasp_envs.wall_reacher3d_v0 import WallReacher3DEnv
 
-__all__ = ["ENV_IDS", "Grasper3DEnv", "Reacher2DEnv", "Reacher2DEnvV1", "Reacher3DEnv", "Reacher3DEnvV1", "WallReacher3DEnv"]
+__all__ = [
+    "ENV_IDS",
+    "Grasper3DEnv",
+    "Grasper3DEnvV1",
+    "Reacher2DEnv",
+    "Reacher2DEnvV1",
+    "Reacher3DEnv",
+    "Reacher3DEnvV1",
+    "WallReacher3DEnv",
+]
 
 # id -> (entry point, max_episode_steps, reward_threshold). Thresholds are measured returns of a solution:
 # the hand-written controllers of grasp_envs.scripted (mean of 20 seeded episodes: Reacher3D -8.2,
@@ -31,6 +41,7 @@ _SPECS = {
     "Reacher3D-v0": ("grasp_envs.reacher3d_v0:Reacher3DEnv", 100, -8.0),
     "Reacher3D-v1": ("grasp_envs.reacher3d_v1:Reacher3DEnv", 100, 30.0),
     "Grasper3D-v0": ("grasp_envs.grasper3d_v0:Grasper3DEnv", 100, 90.0),
+    "Grasper3D-v1": ("grasp_envs.grasper3d_v1:Grasper3DEnv", 100, 200.0),
     "WallReacher3D-v0": ("grasp_envs.wall_reacher3d_v0:WallReacher3DEnv", 100, -45.0),
 }
 ENV_IDS = tuple(_SPECS)

@@ -201,6 +201,10 @@ class Grasper3DEnv(ArmEnv):
     def _is_grasped(self, contacts: dict[str, int]) -> bool:
         return contacts["right"] > 0 and contacts["left"] > 0
 
+    def _grasp_score(self, contacts: dict[str, int]) -> float:
+        """``reward_grasp`` before its weight, in [0, 1]: the fraction of claw capsules on the cube."""
+        return (contacts["right"] + contacts["left"]) / 8.0
+
     def _is_success(self) -> bool:
         return self.cube_height() >= self._lift_height and self._is_grasped(self._contacts)
 
@@ -233,7 +237,7 @@ class Grasper3DEnv(ArmEnv):
             terms = {
                 "reward_reach": self._reward_reach_weight
                 * (1.0 - float(np.tanh(10.0 * np.linalg.norm(self.site_pos("grip") - cube)))),
-                "reward_grasp": self._reward_grasp_weight * (contacts["right"] + contacts["left"]) / 8.0,
+                "reward_grasp": self._reward_grasp_weight * self._grasp_score(contacts),
                 "reward_lift": self._reward_lift_weight * float(grasped) * min(max(height, 0.0) / self._lift_height, 1.0),
                 "reward_hold": self._reward_hold_weight * float(solved),
                 "reward_ctrl": ctrl,

@@ -70,6 +70,7 @@ def wall_reacher3d_policy(env: ArmEnv) -> NDArray[np.float64]:
 
 
 GRIP_COMMAND = 0.05  # a gentle squeeze: 5 N m on the claw holds the 14 g cube; full torque squirts it out
+SERVO_GRIP_COMMAND = 0.5  # Grasper3D-v1's servo: aim at -0.1 rad, ~2 N m on the cube (measured: 85 % lifts vs 60 % at 1)
 APPROACH_SPEED, LIFT_SPEED = 0.35, 0.25  # m/s of the grip site
 
 
@@ -113,7 +114,10 @@ def grasper3d_policy(env: ArmEnv, lift: bool = True) -> NDArray[np.float64]:
     approach *= min(1.0, max_speed / max(float(np.linalg.norm(approach)), 1e-9))
     error = np.concatenate([approach, [-4.0 * closing @ up], [0.2 * 4.0 * (-1.0 - axis @ up)]])
     velocity = np.clip(_damped_least_squares(jacobian, error, damping=1e-4), -10.0, 10.0)
-    return np.clip(np.concatenate([_velocity_servo(env, dofs, velocity), [claw]]), -0.5, 0.5)
+    low, high = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
+    if model.actuator_biastype[-1] != mujoco.mjtBias.mjBIAS_NONE:  # v1: a force-limited position servo
+        claw = SERVO_GRIP_COMMAND if claw > 0 else low[-1]
+    return np.clip(np.concatenate([_velocity_servo(env, dofs, velocity), [claw]]), low, high)
 
 
 SCRIPTED_POLICIES = {
@@ -123,4 +127,5 @@ SCRIPTED_POLICIES = {
     "Reacher3D-v1": reacher3d_policy,
     "WallReacher3D-v0": wall_reacher3d_policy,
     "Grasper3D-v0": grasper3d_policy,
+    "Grasper3D-v1": grasper3d_policy,
 }

@@ -110,9 +110,12 @@ def test_docstring_tables_match_spaces(env_id: str) -> None:
     rows = [int(m) for m in re.findall(r"^\s*\|\s*(\d+)\s*\|", obs_section, flags=re.MULTILINE)]
     assert rows == list(range(env.observation_space.shape[0]))
     assert f"(-inf, inf, ({env.observation_space.shape[0]},), float64)" in obs_section
-    low, high = env.action_space.low[0], env.action_space.high[0]
+    low, high = env.action_space.low, env.action_space.high
     action_section = doc.split("## Action Space")[1].split("## Observation Space")[0]
-    assert f"Box({low:g}, {high:g}, ({env.action_space.shape[0]},), float32)" in action_section
+    if np.all(low == low[0]) and np.all(high == high[0]):
+        assert f"Box({low[0]:g}, {high[0]:g}, ({env.action_space.shape[0]},), float32)" in action_section
+    else:
+        assert f"`{env.action_space}`" in action_section
     env.reset(seed=0)
     _, _, _, _, info = env.step(env.action_space.sample())
     rewards_section = doc.split("## Rewards")[1].split("## Starting State")[0]
@@ -172,18 +175,20 @@ def test_scripted_controller_reaches_target(env_id: str) -> None:
         assert info["is_success"], f"seed {seed}: distance {info['distance']:.3f}"
 
 
-def test_scripted_controller_grasps_and_lifts_cube() -> None:
-    env = gym.make("Grasper3D-v0")
-    policy = SCRIPTED_POLICIES["Grasper3D-v0"]
+@pytest.mark.parametrize("env_id", ["Grasper3D-v0", "Grasper3D-v1"])
+def test_scripted_controller_grasps_and_lifts_cube(env_id: str) -> None:
+    env = gym.make(env_id)
+    policy = SCRIPTED_POLICIES[env_id]
     lifted = 0
     for seed in range(10):
         env.reset(seed=seed)
-        success = False
+        success, highest = False, -np.inf
         for _ in range(env.spec.max_episode_steps):
             _, _, _, _, info = env.step(policy(env.unwrapped))
             success = success or info["is_success"]
+            highest = max(highest, info["cube_height"])
         if success:
-            assert info["cube_height"] >= 0.0
+            assert highest >= 0.05
             lifted += 1
     assert lifted >= 6, f"only {lifted}/10 episodes lifted the cube"
 
@@ -210,10 +215,10 @@ def test_wall_contact_spoils_success() -> None:
     assert info["distance"] < 0.02 and not info["is_success"]
 
 
-def _episode_return(reward_mode: str, seed: int, lift: bool) -> tuple[float, bool]:
+def _episode_return(reward_mode: str, seed: int, lift: bool, env_id: str = "Grasper3D-v0") -> tuple[float, bool]:
     from grasp_envs.scripted import grasper3d_policy
 
-    env = gym.make("Grasper3D-v0", reward_mode=reward_mode)
+    env = gym.make(env_id, reward_mode=reward_mode)
     env.reset(seed=seed)
     total, success = 0.0, False
     for _ in range(100):
@@ -225,19 +230,21 @@ def _episode_return(reward_mode: str, seed: int, lift: bool) -> tuple[float, boo
     return total, success
 
 
-def test_staged_reward_pays_lifting_more_than_holding_the_cube_down() -> None:
+# measured: v0 7 episodes, lift beats touch by 12 to 80 (mean ~46) although the lift starts late in the episode;
+# v1 (lift and hold weights 4)
+@pytest.mark.parametrize(("env_id", "min_margin"), [("Grasper3D-v0", 30.0), ("Grasper3D-v1", 100.0)])
+def test_staged_reward_pays_lifting_more_than_holding_the_cube_down(env_id: str, min_margin: float) -> None:
     """Grasping and lifting beats grasping and staying on the floor (the farming the thesis' reward allowed)."""
     margins = []
     for seed in range(10):
-        lifted, success = _episode_return("staged", seed, lift=True)
+        lifted, success = _episode_return("staged", seed, lift=True, env_id=env_id)
         if not success:
             continue
-        touched, touch_success = _episode_return("staged", seed, lift=False)
+        touched, touch_success = _episode_return("staged", seed, lift=False, env_id=env_id)
         assert not touch_success
         assert lifted > touched, f"seed {seed}: lift {lifted:.1f} vs touch {touched:.1f}"
         margins.append(lifted - touched)
-    # measured: 7 episodes, lift beats touch by 12 to 80 (mean ~46) although the lift starts late in the episode
-    assert len(margins) >= 5 and np.mean(margins) > 30.0, margins
+    assert len(margins) >= 5 and np.mean(margins) > min_margin, margins
 
 
 def test_reacher2d_v1_adds_a_bounded_precision_bonus_to_v0() -> None:

@@ -39,6 +39,7 @@ def test_all_envs_have_entries_in_every_file() -> None:
         "Reacher3D-v1",
         "Reacher3D-v0",
         "Grasper3D-v0",
+        "Grasper3D-v1",
         "WallReacher3D-v0",
         "Reacher-v5",
         "Pendulum-v1",
