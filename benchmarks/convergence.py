@@ -141,7 +141,8 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
         params.pop(key, None)
     algo_class = algorithms()[algo]
     monitor = {"info_keywords": ("is_success",)}
-    venv = make_vec_env(env_id, n_envs=n_envs, seed=seed + 100_000 * len(rows), monitor_kwargs=monitor)
+    env_kwargs = params.pop("env_kwargs", None)  # the YAML's env_kwargs, as rl-zoo3 applies them
+    venv = make_vec_env(env_id, n_envs=n_envs, seed=seed + 100_000 * len(rows), env_kwargs=env_kwargs, monitor_kwargs=monitor)
     model_path, stats_path = folder / "model.zip", folder / "vecnormalize.pkl"
     if rows:
         env = VecNormalize.load(str(stats_path), venv) if normalize else venv
@@ -150,7 +151,7 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
     else:
         env = VecNormalize(venv, gamma=params.get("gamma", 0.99)) if normalize else venv
         model = algo_class(policy, env, seed=seed, device="cpu", verbose=0, **params)
-    eval_env = make_vec_env(env_id, n_envs=1, seed=EVAL_SEED)
+    eval_env = make_vec_env(env_id, n_envs=1, seed=EVAL_SEED, env_kwargs=env_kwargs)
     if normalize:
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False)
     target_kl = float(getattr(model, "target_kl", None) or float("nan"))

@@ -20,7 +20,7 @@ STEPS = {  # the envs with a picture in docs/environments.md (the v1 reachers lo
     "Reacher2D-v0": 10,
     "Reacher3D-v0": 20,
     "Grasper3D-v0": 45,
-    "Grasper3D-v1": 84,
+    "Grasper3D-v1": 60,
     "WallReacher3D-v0": 25,
 }
 

@@ -201,6 +201,10 @@ class Grasper3DEnv(ArmEnv):
     def _is_grasped(self, contacts: dict[str, int]) -> bool:
         return contacts["right"] > 0 and contacts["left"] > 0
 
+    def _reach_distance(self) -> float:
+        """The distance ``reward_reach`` shrinks (m): grip site to cube centre."""
+        return float(np.linalg.norm(self.site_pos("grip") - self.cube_pos()))
+
     def _grasp_score(self, contacts: dict[str, int]) -> float:
         """``reward_grasp`` before its weight, in [0, 1]: the fraction of claw capsules on the cube."""
         return (contacts["right"] + contacts["left"]) / 8.0
@@ -235,8 +239,7 @@ class Grasper3DEnv(ArmEnv):
         else:
             solved = grasped and height >= self._lift_height
             terms = {
-                "reward_reach": self._reward_reach_weight
-                * (1.0 - float(np.tanh(10.0 * np.linalg.norm(self.site_pos("grip") - cube)))),
+                "reward_reach": self._reward_reach_weight * (1.0 - float(np.tanh(10.0 * self._reach_distance()))),
                 "reward_grasp": self._reward_grasp_weight * self._grasp_score(contacts),
                 "reward_lift": self._reward_lift_weight * float(grasped) * min(max(height, 0.0) / self._lift_height, 1.0),
                 "reward_hold": self._reward_hold_weight * float(solved),

@@ -5,6 +5,8 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from gymnasium import utils
+from numpy.typing import NDArray
 
 from grasp_envs import grasper3d_v0
 from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D
@@ -15,7 +17,6 @@ BETWEEN_TOLERANCE = 0.02  # m, see Grasper3DEnv.cube_between_claws
 def _v1_docstring(v0_doc: str) -> str:
     """v0's docstring with v1's claw, grasp term, weights, success rule and version entry."""
     action_v0 = v0_doc.split("## Action Space\n")[1].split("\n\n")[0]
-    grasp_v0 = v0_doc.split("    - `reward_grasp`")[1].split("\n    - ")[0]
     replacements = {
         "## Description\n": (
             "## Description\n    Grasper3D-v0 with a claw that can hold the cube and a reward in which lifting dominates.\n\n"
@@ -27,13 +28,19 @@ def _v1_docstring(v0_doc: str) -> str:
             "    holds the claw half open (34 mm between the tips, the cube is 24 mm), $c = -1$ opens it fully (-40°) and\n"
             "    $c = 1$ closes it (positive closes)."
         ),
-        grasp_v0: (
-            " $= w_{grasp} \\cdot b (1 + n / 8) / 2$ with $b$ = 1 while the cube's centre lies between the\n"
-            "      claw halves (within 2 cm of the segment joining the claw sites) and $n$ the claw capsules touching it,\n"
-            "      `reward_grasp_weight` (1): half for straddling the cube, the rest for closing on it"
+        "`reward_grasp_weight` (1): the thesis' contact shaping": "`reward_grasp_weight` (4): the thesis' contact shaping",
+        "    - `reward_reach` $= w_{reach} (1 - \\tanh(10 \\lVert p_{grip} - p_{cube} \\rVert))$, `reward_reach_weight` (1)": (
+            "    - `reward_reach` $= w_{reach} (1 - \\tanh(10 e))$, `reward_reach_weight` (1), with the thesis' claw terms\n"
+            "      $e = \\lVert p_{right} - p_{cube} \\rVert + \\lVert p_{left} - p_{cube} \\rVert"
+            " - \\lVert p_{left} - p_{right} \\rVert \\ge 0$,\n"
+            "      zero exactly when the cube's centre lies on the segment between the claw sites (straddled)"
         ),
         "while both halves touch the cube, `reward_lift_weight` (2)": "while grasped, `reward_lift_weight` (4)",
-        "`reward_hold_weight` (2)": "`reward_hold_weight` (4)",
+        "`reward_hold_weight` (2)\n": (
+            "`reward_hold_weight` (4)\n"
+            "    - `reward_floor` $= -w_{floor}$ while a claw capsule touches the floor, `reward_floor_weight` (1): an open\n"
+            "      claw pressed onto the floor straddles the cube but cannot close (its tips swing towards the floor)\n"
+        ),
         'Success (`info["is_success"]`): $h \\ge 0.05$ m while both claw halves touch the cube.': (
             'Success (`info["is_success"]`): $h \\ge 0.05$ m while grasped: both claw halves touch the cube and the\n'
             "    cube's centre lies between them (v0: any touch of both halves, which pressing from above also gives)."
@@ -41,6 +48,11 @@ def _v1_docstring(v0_doc: str) -> str:
         '| `xml_file` | `"grasper3d.xml"` |': '| `xml_file` | `"grasper3d_v1.xml"` |',
         "| `reward_lift_weight` | `2.0` |": "| `reward_lift_weight` | `4.0` |",
         "| `reward_hold_weight` | `2.0` |": "| `reward_hold_weight` | `4.0` |",
+        "| `reward_grasp_weight` | `1.0` |": "| `reward_grasp_weight` | `4.0` |",
+        "| `lift_height` | `0.05` | height of the cube's bottom above the floor that counts as lifted (m) |\n": (
+            "| `lift_height` | `0.05` | height of the cube's bottom above the floor that counts as lifted (m) |\n"
+            "    | `reward_floor_weight` | `1.0` | weight of `reward_floor` (staged) |\n"
+        ),
     }
     doc = v0_doc
     for old, new in replacements.items():
@@ -52,10 +64,13 @@ def _v1_docstring(v0_doc: str) -> str:
         + "\n    * v1: a claw that can hold the cube: a force-limited position servo (v0's 50 N m torque motor squeezes"
         "\n      the 14 g cube out of the slanted claw) whose zero command holds the claw half open; the halves no"
         "\n      longer collide at their common hinge (in v0 they always did, so small torques could not open the"
-        "\n      claw) and closing stops at 2°; lighter claw joints (armature 0.02, damping 0.5). Reward: grasping"
-        "\n      needs the cube between the halves, straddling it pays, lift and hold weights 4 (v0: 2), so that"
-        "\n      reaching (about 85 per episode in v0, where the scripted lift earns 92) no longer competes with"
-        "\n      lifting. Observation and time limit are v0's.\n    "
+        "\n      claw) and closing stops at 2°; lighter claw joints (armature 0.02, damping 0.5); forearm roll limited"
+        "\n      to ±90° (the claw is symmetric; learned policies spun the unlimited roll at 6-10 rad/s); grip site"
+        "\n      1 cm further out (0.155 m along the forearm), where the closing tips meet the cube. Reward: reaching"
+        "\n      means straddling the cube (the thesis' claw terms), lifting needs the cube between the halves, a claw"
+        "\n      on the floor costs, grasp weight 4 (v0: 1), lift and hold weights 4 (v0: 2), so that reaching (about"
+        "\n      85 per episode in v0, where the scripted lift earns 92) no longer competes with lifting. Observation"
+        "\n      and time limit are v0's.\n    "
     )
 
 
@@ -69,13 +84,14 @@ class Grasper3DEnv(grasper3d_v0.Grasper3DEnv):
         default_camera_config: dict[str, Any] = DEFAULT_CAMERA_CONFIG_3D,
         reward_mode: str = "staged",
         reward_reach_weight: float = 1.0,
-        reward_grasp_weight: float = 1.0,
+        reward_grasp_weight: float = 4.0,
         reward_lift_weight: float = 4.0,
         reward_hold_weight: float = 4.0,
         reward_control_weight: float | None = None,
         terminate_on_success: bool | None = None,
         reset_noise_scale: float = 0.1,
         lift_height: float = 0.05,
+        reward_floor_weight: float = 1.0,
         **kwargs: Any,
     ):
         super().__init__(
@@ -83,6 +99,26 @@ class Grasper3DEnv(grasper3d_v0.Grasper3DEnv):
             reward_lift_weight, reward_hold_weight, reward_control_weight, terminate_on_success, reset_noise_scale,
             lift_height, **kwargs,
         )  # fmt: skip
+        utils.EzPickle.__init__(
+            self, xml_file, frame_skip, default_camera_config, reward_mode, reward_reach_weight, reward_grasp_weight,
+            reward_lift_weight, reward_hold_weight, reward_control_weight, terminate_on_success, reset_noise_scale,
+            lift_height, reward_floor_weight, **kwargs,
+        )  # fmt: skip
+        self._reward_floor_weight = reward_floor_weight
+        self._all_claw_geoms = self._claw_geoms["right"] | self._claw_geoms["left"]
+
+    def _contact_summary(self) -> dict[str, int]:
+        summary = super()._contact_summary()
+        summary["claw_floor"] = int(self.touching(self.contact_pairs(), self._all_claw_geoms, self._floor_geom).any())
+        summary["between"] = int(self.cube_between_claws())
+        return summary
+
+    def _get_rew(self, action: NDArray[np.float64]) -> tuple[float, dict[str, Any]]:
+        reward, info = super()._get_rew(action)
+        if self._reward_mode == "staged":
+            info["reward_floor"] = -self._reward_floor_weight * self._contacts["claw_floor"]
+            reward += info["reward_floor"]
+        return reward, info
 
     def cube_between_claws(self) -> bool:
         """Whether the cube's centre lies between the claw halves: its projection on the segment from the
@@ -93,9 +129,12 @@ class Grasper3DEnv(grasper3d_v0.Grasper3DEnv):
         t = float((cube - right) @ span / (span @ span))
         return 0.0 < t < 1.0 and float(np.linalg.norm(cube - right - t * span)) < BETWEEN_TOLERANCE
 
-    def _is_grasped(self, contacts: dict[str, int]) -> bool:
-        return super()._is_grasped(contacts) and self.cube_between_claws()
+    def _reach_distance(self) -> float:
+        """The thesis' claw terms: |right - cube| + |left - cube| - |left - right| (m), zero exactly when the cube's
+        centre lies on the segment between the claw sites: it pulls the claw to straddle the cube, and to open
+        for it, rather than towards a point that a closed claw would press onto the cube."""
+        right, left, cube = self.site_pos("claw_right"), self.site_pos("claw_left"), self.cube_pos()
+        return float(np.linalg.norm(right - cube) + np.linalg.norm(left - cube) - np.linalg.norm(left - right))
 
-    def _grasp_score(self, contacts: dict[str, int]) -> float:
-        # half for holding the cube between the halves, the rest for the capsules that touch it
-        return 0.5 * float(self.cube_between_claws()) * (1.0 + super()._grasp_score(contacts))
+    def _is_grasped(self, contacts: dict[str, int]) -> bool:
+        return super()._is_grasped(contacts) and contacts["between"] > 0
