@@ -190,9 +190,8 @@ class Grasper3DEnv(ArmEnv):
         pairs = self.contact_pairs()
         return {side: self.touching_geoms(pairs, self._claw_geoms[side], self._cube_geom) for side in CLAW_SIDES}
 
-    def _contact_summary(self) -> dict[str, int]:
+    def _contact_summary(self, pairs: NDArray[np.int32]) -> dict[str, int]:
         """All contact counts the reward, observation and success need, from one read of the contacts."""
-        pairs = self.contact_pairs()
         summary = {side: self.touching_geoms(pairs, self._claw_geoms[side], self._cube_geom) for side in CLAW_SIDES}
         summary["floor"] = int(self.touching(pairs, self._bottom_claw_geoms, self._floor_geom).sum())
         summary["claw_claw"] = min(int(self.touching(pairs, self._claw_geoms["right"], self._claw_geoms["left"]).sum()), 2)
@@ -204,10 +203,6 @@ class Grasper3DEnv(ArmEnv):
     def _reach_distance(self) -> float:
         """The distance ``reward_reach`` shrinks (m): grip site to cube centre."""
         return float(np.linalg.norm(self.site_pos("grip") - self.cube_pos()))
-
-    def _grasp_score(self, contacts: dict[str, int]) -> float:
-        """``reward_grasp`` before its weight, in [0, 1]: the fraction of claw capsules on the cube."""
-        return (contacts["right"] + contacts["left"]) / 8.0
 
     def _is_success(self) -> bool:
         return self.cube_height() >= self._lift_height and self._is_grasped(self._contacts)
@@ -240,7 +235,7 @@ class Grasper3DEnv(ArmEnv):
             solved = grasped and height >= self._lift_height
             terms = {
                 "reward_reach": self._reward_reach_weight * (1.0 - float(np.tanh(10.0 * self._reach_distance()))),
-                "reward_grasp": self._reward_grasp_weight * self._grasp_score(contacts),
+                "reward_grasp": self._reward_grasp_weight * (contacts["right"] + contacts["left"]) / 8.0,
                 "reward_lift": self._reward_lift_weight * float(grasped) * min(max(height, 0.0) / self._lift_height, 1.0),
                 "reward_hold": self._reward_hold_weight * float(solved),
                 "reward_ctrl": ctrl,
@@ -260,7 +255,7 @@ class Grasper3DEnv(ArmEnv):
         angles = qpos[self._arm_qpos]
         cube = self.cube_pos()
         # the observation is computed first after every physics change (step and reset): read contacts once here
-        self._contacts = contacts = self._contact_summary()
+        self._contacts = contacts = self._contact_summary(self.contact_pairs())
         return np.concatenate(
             [
                 np.cos(angles),

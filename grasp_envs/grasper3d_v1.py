@@ -107,9 +107,9 @@ class Grasper3DEnv(grasper3d_v0.Grasper3DEnv):
         self._reward_floor_weight = reward_floor_weight
         self._all_claw_geoms = self._claw_geoms["right"] | self._claw_geoms["left"]
 
-    def _contact_summary(self) -> dict[str, int]:
-        summary = super()._contact_summary()
-        summary["claw_floor"] = int(self.touching(self.contact_pairs(), self._all_claw_geoms, self._floor_geom).any())
+    def _contact_summary(self, pairs: NDArray[np.int32]) -> dict[str, int]:
+        summary = super()._contact_summary(pairs)
+        summary["claw_floor"] = int(self.touching(pairs, self._all_claw_geoms, self._floor_geom).any())
         summary["between"] = int(self.cube_between_claws())
         return summary
 
