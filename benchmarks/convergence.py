@@ -40,6 +40,7 @@ BUDGETS = {
     "WallReacher3D-v0": 2_000_000,
     "Grasper3D-v0": 5_000_000,
     "Grasper3D-v1": 5_000_000,
+    "Grasper3D-v2": 5_000_000,
 }
 TARGETS = {
     "Reacher2D-v0": 0.9,
@@ -49,6 +50,7 @@ TARGETS = {
     "WallReacher3D-v0": 0.8,
     "Grasper3D-v0": 0.9,
     "Grasper3D-v1": 0.9,
+    "Grasper3D-v2": 0.9,
 }
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "plain": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": False}),

@@ -1,11 +1,14 @@
 """Does the Grasper3D-v0 default reward avoid the thesis reward's collapse? Long runs, resumable.
 
     python benchmarks/grasper_reward.py --algo trpo --reward-mode staged --seed 0 --steps 3000000 [--chunk 250000]
+    python benchmarks/grasper_reward.py --env Grasper3D-v1 --algo trpo_plus --env-kwargs '{"reward_grasp_weight": 8}' \
+        --model-kwargs '{"cg_warm_start": true}' --tag g8 --seed 0
 
 Trains the anchor setting of issue #3 (sb3-contrib TRPO or TRPOPlus, 8 envs, VecNormalize, 100-100 tanh
 MLP, gamma 0.995, target_kl 0.01) in chunks; after each chunk it saves the model and VecNormalize
 statistics and appends the chunk's training-episode statistics (lift rate = episodes whose final step
-was a success, mean return) to benchmarks/results/grasper_reward/<run>.json. Rerunning continues from the
+was a success, mean return) to benchmarks/results/grasper_reward/<run>.json (<run>: algo, reward mode,
+--tag and seed, prefixed by the env id for versions other than v0). Rerunning continues from the
 last chunk, so a session ending mid-run loses at most one chunk.
 """
 
@@ -15,6 +18,7 @@ import argparse
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -49,7 +53,11 @@ class EpisodeStats(BaseCallback):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=list(ALGOS), default="trpo")
+    parser.add_argument("--env", default="Grasper3D-v0", choices=["Grasper3D-v0", "Grasper3D-v1", "Grasper3D-v2"])
     parser.add_argument("--reward-mode", choices=["staged", "thesis"], default="staged")
+    parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict of further env kwargs")
+    parser.add_argument("--model-kwargs", type=json.loads, default={}, help="JSON dict of further algorithm kwargs")
+    parser.add_argument("--tag", default="", help="names the run when --env-kwargs/--model-kwargs are given")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--steps", type=int, default=3_000_000)
     parser.add_argument("--chunk", type=int, default=250_000)
@@ -61,17 +69,22 @@ def main() -> None:
         plot(Path(args.out), Path(args.plot))
         return
     th.set_num_threads(1)
-    name = f"{args.algo}_{args.reward_mode}_seed{args.seed}"
+    if (args.env_kwargs or args.model_kwargs) and not args.tag:
+        parser.error("--env-kwargs and --model-kwargs need a --tag that names the run")
+    prefix = "" if args.env == "Grasper3D-v0" else f"{args.env}_"
+    name = f"{prefix}{args.algo}_{args.reward_mode}{'_' + args.tag if args.tag else ''}_seed{args.seed}"
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     log_path, model_path, stats_path = out / f"{name}.json", out / f"{name}_model.zip", out / f"{name}_vecnormalize.pkl"
     log = json.loads(log_path.read_text()) if log_path.exists() else {"settings": vars(args), "chunks": []}
     if args.diagnose:
-        diagnose(ALGOS[args.algo], model_path, stats_path, args.reward_mode)
+        diagnose(
+            ALGOS[args.algo], model_path, stats_path, {"reward_mode": args.reward_mode, **args.env_kwargs}, env_id=args.env
+        )
         return
-    env_kwargs = {"reward_mode": args.reward_mode}
+    env_kwargs = {"reward_mode": args.reward_mode, **args.env_kwargs}
     monitor = {"info_keywords": ("is_success",)}
-    venv = make_vec_env("Grasper3D-v0", n_envs=8, seed=args.seed + 1000 * len(log["chunks"]), env_kwargs=env_kwargs,
+    venv = make_vec_env(args.env, n_envs=8, seed=args.seed + 1000 * len(log["chunks"]), env_kwargs=env_kwargs,
                         monitor_kwargs=monitor)  # fmt: skip
     algo = ALGOS[args.algo]
     if model_path.exists() and stats_path.exists():
@@ -81,7 +94,7 @@ def main() -> None:
         env = VecNormalize(venv, gamma=0.995)
         policy_kwargs = dict(net_arch=[100, 100], activation_fn=nn.Tanh)
         model = algo("MlpPolicy", env, n_steps=1024, batch_size=1024, gamma=0.995, gae_lambda=0.97, target_kl=0.01,
-                     cg_max_steps=10, seed=args.seed, policy_kwargs=policy_kwargs)  # fmt: skip
+                     cg_max_steps=10, seed=args.seed, policy_kwargs=policy_kwargs, **args.model_kwargs)  # fmt: skip
     while model.num_timesteps < args.steps:
         stats = EpisodeStats()
         start = time.time()
@@ -100,16 +113,22 @@ def main() -> None:
 
 
 def diagnose(
-    algo: type, model_path: Path, stats_path: Path, reward_mode: str, episodes: int = 10, env_id: str = "Grasper3D-v0"
+    algo: type,
+    model_path: Path,
+    stats_path: Path,
+    env_kwargs: dict[str, Any],
+    episodes: int = 10,
+    env_id: str = "Grasper3D-v0",
 ) -> None:
     """Deterministic episodes of the saved policy: where the grip is, how the claw is held, what it touches."""
-    venv = make_vec_env(env_id, n_envs=1, seed=123, env_kwargs={"reward_mode": reward_mode})
+    venv = make_vec_env(env_id, n_envs=1, seed=123, env_kwargs=env_kwargs)
     env = VecNormalize.load(str(stats_path), venv)
     env.training, env.norm_reward = False, False
     model = algo.load(model_path, env=env)
     arm = venv.envs[0].unwrapped
     rows: dict[str, list[float]] = {"grip-cube distance (m)": [], "right half touches": [], "left half touches": [],
-                                    "claw angle (rad)": [], "forearm axis z": [], "cube height (m)": []}  # fmt: skip
+                                    "claw angle (rad)": [], "claw action": [], "forearm axis z": [], "cube height (m)": [],
+                                    "cube between the halves": []}  # fmt: skip
     for _ in range(episodes):
         obs = env.reset()
         for _ in range(100):
@@ -120,6 +139,8 @@ def diagnose(
             rows["right half touches"].append(float(contacts["right"] > 0))
             rows["left half touches"].append(float(contacts["left"] > 0))
             rows["claw angle (rad)"].append(float(arm.data.qpos[arm.model.joint("claw_right").qposadr[0]]))
+            rows["claw action"].append(float(np.clip(action[0, -1], -1.0, 1.0)))
+            rows["cube between the halves"].append(float(getattr(arm, "cube_between_claws", lambda: False)()))
             rows["forearm axis z"].append(float(arm.data.body("forearm").xmat[6]))
             rows["cube height (m)"].append(arm.cube_height())
             if done[0]:
@@ -149,7 +170,7 @@ def plot(folder: Path, output: Path) -> None:
         ax.set_xlabel("timesteps")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle("Grasper3D-v0, sb3-contrib TRPO (8 envs, VecNormalize, 100-100 tanh, gamma 0.995)")
+    fig.suptitle("Grasper3D, anchor setting (8 envs, VecNormalize, 100-100 tanh, gamma 0.995)")
     fig.tight_layout()
     fig.savefig(output, dpi=100)
     plt.close(fig)

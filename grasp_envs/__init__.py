@@ -14,6 +14,7 @@ from gymnasium.envs.registration import register, registry
 
 from grasp_envs.grasper3d_v0 import Grasper3DEnv
 from grasp_envs.grasper3d_v1 import Grasper3DEnv as Grasper3DEnvV1
+from grasp_envs.grasper3d_v2 import Grasper3DEnv as Grasper3DEnvV2
 from grasp_envs.reacher2d_v0 import Reacher2DEnv
 from grasp_envs.reacher2d_v1 import Reacher2DEnv as Reacher2DEnvV1
 from grasp_envs.reacher3d_v0 import Reacher3DEnv
@@ -24,6 +25,7 @@ __all__ = [
     "ENV_IDS",
     "Grasper3DEnv",
     "Grasper3DEnvV1",
+    "Grasper3DEnvV2",
     "Reacher2DEnv",
     "Reacher2DEnvV1",
     "Reacher3DEnv",
@@ -42,6 +44,7 @@ _SPECS = {
     "Reacher3D-v1": ("grasp_envs.reacher3d_v1:Reacher3DEnv", 100, 30.0),
     "Grasper3D-v0": ("grasp_envs.grasper3d_v0:Grasper3DEnv", 100, 90.0),
     "Grasper3D-v1": ("grasp_envs.grasper3d_v1:Grasper3DEnv", 100, 210.0),
+    "Grasper3D-v2": ("grasp_envs.grasper3d_v2:Grasper3DEnv", 100, 210.0),
     "WallReacher3D-v0": ("grasp_envs.wall_reacher3d_v0:WallReacher3DEnv", 100, -45.0),
 }
 ENV_IDS = tuple(_SPECS)

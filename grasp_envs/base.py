@@ -48,6 +48,7 @@ class ArmEnv(MujocoEnv, utils.EzPickle):
     """
 
     metadata: dict[str, Any] = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"]}
+    action_space: Box  # every arm task has continuous actions
 
     def __init__(
         self,
@@ -111,7 +112,7 @@ class ArmEnv(MujocoEnv, utils.EzPickle):
             )
         if not np.all(np.isfinite(action)):
             raise ValueError(f"{type(self).__name__}.step got a non-finite action: {action}")
-        return np.clip(action, self._ctrl_low, self._ctrl_high)
+        return np.clip(action, self.action_space.low, self.action_space.high)
 
     def _step_mujoco_simulation(self, ctrl: NDArray[np.float64], n_frames: int) -> None:
         # Gymnasium's version also runs mj_rnePostConstraint (cacc, cfrc_*), which nothing here reads.

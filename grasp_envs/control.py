@@ -1,0 +1,82 @@
+"""Joint-level feedback control shared by the scripted controllers and Grasper3D-v2's end-effector actions.
+
+Inverse kinematics by damped least squares on MuJoCo's Jacobians, then a joint-velocity servo with gravity
+(bias-force) compensation. Every function reads the simulator state of an unwrapped ``ArmEnv``.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from grasp_envs.base import ArmEnv
+
+VELOCITY_GAIN = 25.0  # joint-velocity servo gain (1/s); armature 1, so torque = gain * velocity error
+MAX_JOINT_SPEED = 10.0  # rad/s asked of any joint by the inverse kinematics
+
+
+def damped_least_squares(
+    jacobian: NDArray[np.float64], error: NDArray[np.float64], damping: float = 1e-3
+) -> NDArray[np.float64]:
+    """``J^T (J J^T + damping I)^{-1} error``: the joint motion that best produces ``error``."""
+    jjt = jacobian @ jacobian.T
+    return jacobian.T @ np.linalg.solve(jjt + damping * np.eye(len(jjt)), error)
+
+
+def velocity_servo(env: ArmEnv, dofs: NDArray[np.int64], desired_velocity: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Actuator commands (torque / gear) that drive the joints ``dofs`` towards ``desired_velocity``.
+
+    The first ``len(dofs)`` actuators must drive ``dofs`` in order. Gravity and Coriolis forces
+    (``qfrc_bias``) and the joints' damping (1 N m s/rad) are compensated.
+    """
+    gear = env.model.actuator_gear[: len(dofs), 0]
+    qvel = env.data.qvel[dofs]
+    torque = VELOCITY_GAIN * (desired_velocity - qvel) + env.data.qfrc_bias[dofs] + qvel
+    return torque / gear
+
+
+def site_jacobian(env: ArmEnv, site: str, dofs: NDArray[np.int64]) -> NDArray[np.float64]:
+    """Translational Jacobian of a site with respect to the joints ``dofs``, shape ``(3, len(dofs))``."""
+    jacp = np.zeros((3, env.model.nv))
+    mujoco.mj_jacSite(env.model, env.data, jacp, None, env.model.site(site).id)
+    return jacp[:, dofs]
+
+
+def reach(
+    env: ArmEnv, site: str, goal: NDArray[np.float64], dofs: NDArray[np.int64], speed: float = 8.0
+) -> NDArray[np.float64]:
+    """Commands moving ``site`` towards ``goal`` with the joints ``dofs``."""
+    error = goal - env.data.site(site).xpos
+    velocity = damped_least_squares(site_jacobian(env, site, dofs), speed * error)
+    return velocity_servo(env, dofs, np.clip(velocity, -MAX_JOINT_SPEED, MAX_JOINT_SPEED))
+
+
+def grip_down_commands(env: ArmEnv, grip_velocity: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Commands of the Grasper's five arm motors that move its grip site at ``grip_velocity`` (m/s) while
+    turning the forearm to point down and the claw's closing axis to lie horizontal.
+
+    The task has five rows for five joints: the grip velocity (3), the closing axis' vertical component
+    driven to zero (1) and the forearm axis driven towards -z (1, weighted 0.2). The claw's yaw about the
+    vertical stays free, as in the scripted grasp.
+    """
+    model, data = env.model, env.data
+    dofs = np.arange(5)
+    xmat = data.body("forearm").xmat.reshape(3, 3)
+    axis, closing = xmat[:, 0], xmat[:, 1]
+    jacr = np.zeros((3, model.nv))
+    mujoco.mj_jacBody(model, data, None, jacr, model.body("forearm").id)
+    up = np.array([0.0, 0.0, 1.0])
+    jacobian = np.vstack(
+        [
+            site_jacobian(env, "grip", dofs),
+            np.cross(closing, up) @ jacr[:, dofs],
+            0.2 * np.cross(axis, up) @ jacr[:, dofs],
+        ]
+    )
+    error = np.concatenate([grip_velocity, [-4.0 * closing @ up], [0.2 * 4.0 * (-1.0 - axis @ up)]])
+    velocity = np.clip(damped_least_squares(jacobian, error, damping=1e-4), -MAX_JOINT_SPEED, MAX_JOINT_SPEED)
+    return velocity_servo(env, dofs, velocity)
