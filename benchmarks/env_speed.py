@@ -49,12 +49,13 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--steps", type=int, default=20_000)
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--envs", nargs="+", default=list(grasp_envs.ENV_IDS), choices=grasp_envs.ENV_IDS)
     args = parser.parse_args()
     print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}, "
           f"mujoco {mujoco.__version__}, gymnasium {gym.__version__}")  # fmt: skip
     print("\n| env | frame_skip | raw mj_step (µs / env step) | env.step (µs) | overhead ratio | env steps/s |")
     print("|---|---|---|---|---|---|")
-    for env_id in grasp_envs.ENV_IDS:
+    for env_id in args.envs:
         raw, full = [], []
         for _ in range(args.repeats):  # interleaved repeats
             raw.append(time_mj_step(env_id, args.steps))
