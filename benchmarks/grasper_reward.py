@@ -58,6 +58,7 @@ def main() -> None:
     parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict of further env kwargs")
     parser.add_argument("--model-kwargs", type=json.loads, default={}, help="JSON dict of further algorithm kwargs")
     parser.add_argument("--tag", default="", help="names the run when --env-kwargs/--model-kwargs are given")
+    parser.add_argument("--init-from", default=None, help="start from a convergence.py job folder's policy")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--steps", type=int, default=3_000_000)
     parser.add_argument("--chunk", type=int, default=250_000)
@@ -69,8 +70,8 @@ def main() -> None:
         plot(Path(args.out), Path(args.plot))
         return
     th.set_num_threads(1)
-    if (args.env_kwargs or args.model_kwargs) and not args.tag:
-        parser.error("--env-kwargs and --model-kwargs need a --tag that names the run")
+    if (args.env_kwargs or args.model_kwargs or args.init_from) and not args.tag:
+        parser.error("--env-kwargs, --model-kwargs and --init-from need a --tag that names the run")
     prefix = "" if args.env == "Grasper3D-v0" else f"{args.env}_"
     name = f"{prefix}{args.algo}_{args.reward_mode}{'_' + args.tag if args.tag else ''}_seed{args.seed}"
     out = Path(args.out)
@@ -90,6 +91,10 @@ def main() -> None:
     if model_path.exists() and stats_path.exists():
         env = VecNormalize.load(str(stats_path), venv)
         model = algo.load(model_path, env=env)
+    elif args.init_from:  # continue a convergence.py job's policy (its model.zip, vecnormalize.pkl) here
+        env = VecNormalize.load(str(Path(args.init_from) / "vecnormalize.pkl"), venv)
+        model = algo.load(Path(args.init_from) / "model.zip", env=env)
+        model.num_timesteps = 0
     else:
         env = VecNormalize(venv, gamma=0.995)
         policy_kwargs = dict(net_arch=[100, 100], activation_fn=nn.Tanh)

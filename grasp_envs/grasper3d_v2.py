@@ -14,6 +14,8 @@ from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D
 from grasp_envs.control import grip_down_commands
 
 MAX_GRIP_SPEED = 0.4  # m/s of the grip site at an action of 1
+CLAW_OPEN_TARGET, CLAW_SERVO_SLOPE = -0.3, 0.4  # v1's claw servo aims at -0.3 + 0.4 c rad
+CLAW_TARGET_RANGE = (-0.7, 0.1)  # what v1's servo can aim at (ctrl in [-1, 1])
 
 
 def _v2_docstring(v1_doc: str) -> str:
@@ -34,7 +36,9 @@ def _v2_docstring(v1_doc: str) -> str:
             "    clipped to v1's range; `grasp_envs.control.grip_down_commands`). The claw's yaw is left free."
         ),
         "| `lift_height` | `0.05` |": (
-            "| `max_grip_speed` | `0.4` | grip-site speed at an action of 1 (m/s) |\n    | `lift_height` | `0.05` |"
+            "| `max_grip_speed` | `0.4` | grip-site speed at an action of 1 (m/s) |\n"
+            "    | `claw_rate` | `None` | `None`: the claw action is v1's servo command; a number $r$: each step's claw"
+            " action $c$ moves the servo's target by $r c$ rad (within [-0.7, 0.1]) |\n    | `lift_height` | `0.05` |"
         ),
     }
     doc = v1_doc
@@ -71,11 +75,16 @@ class Grasper3DEnv(grasper3d_v1.Grasper3DEnv):
         lift_height: float = 0.05,
         reward_floor_weight: float = 1.0,
         max_grip_speed: float = MAX_GRIP_SPEED,
+        claw_rate: float | None = None,
         **kwargs: Any,
     ):
         if not max_grip_speed > 0:
             raise ValueError(f"max_grip_speed must be positive, got {max_grip_speed!r}")
+        if claw_rate is not None and not claw_rate > 0:
+            raise ValueError(f"claw_rate must be positive or None, got {claw_rate!r}")
         self.max_grip_speed = float(max_grip_speed)
+        self._claw_rate = claw_rate
+        self._claw_target = CLAW_OPEN_TARGET
         super().__init__(
             xml_file, frame_skip, default_camera_config, reward_mode, reward_reach_weight, reward_grasp_weight,
             reward_lift_weight, reward_hold_weight, reward_control_weight, terminate_on_success, reset_noise_scale,
@@ -84,7 +93,7 @@ class Grasper3DEnv(grasper3d_v1.Grasper3DEnv):
         utils.EzPickle.__init__(
             self, xml_file, frame_skip, default_camera_config, reward_mode, reward_reach_weight, reward_grasp_weight,
             reward_lift_weight, reward_hold_weight, reward_control_weight, terminate_on_success, reset_noise_scale,
-            lift_height, reward_floor_weight, max_grip_speed, **kwargs,
+            lift_height, reward_floor_weight, max_grip_speed, claw_rate, **kwargs,
         )  # fmt: skip
 
     def _set_action_space(self) -> Box:
@@ -93,5 +102,14 @@ class Grasper3DEnv(grasper3d_v1.Grasper3DEnv):
 
     def _simulate(self, action: NDArray[np.float64]) -> bool:
         arm = grip_down_commands(self, self.max_grip_speed * action[:3])
-        ctrl = np.clip(np.concatenate([arm, action[3:]]), self._ctrl_low, self._ctrl_high)
+        claw = action[3]
+        if self._claw_rate is not None:  # the action moves the servo's target angle; ctrl aims the servo there
+            self._claw_target = float(np.clip(self._claw_target + self._claw_rate * claw, *CLAW_TARGET_RANGE))
+            claw = (self._claw_target - CLAW_OPEN_TARGET) / CLAW_SERVO_SLOPE
+        ctrl = np.clip(np.concatenate([arm, [claw]]), self._ctrl_low, self._ctrl_high)
         return super()._simulate(ctrl)
+
+    def reset_model(self) -> NDArray[np.float64]:
+        observation = super().reset_model()
+        self._claw_target = float(self.data.qpos[self._claw_qpos])
+        return observation

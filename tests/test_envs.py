@@ -307,3 +307,21 @@ def test_grasper_v2_action_is_the_grip_velocity() -> None:
         assert env.data.body("forearm").xmat[6] < -0.9  # the forearm's axis points down
     with pytest.raises(ValueError, match="max_grip_speed"):
         gym.make("Grasper3D-v2", max_grip_speed=0.0)
+
+
+def test_grasper_v2_claw_rate_moves_the_servo_target() -> None:
+    """claw_rate r: each step's claw action c moves the servo's target by r c rad (kept in [-0.7, 0.1])."""
+    env = gym.make("Grasper3D-v2", claw_rate=0.1).unwrapped
+    env.reset(seed=0)
+    claw = env.model.joint("claw_right").qposadr[0]
+    for _ in range(10):  # the target runs to its open end, -0.7 rad (the joint's limit is -40 deg)
+        env.step(np.array([0.0, 0.0, 0.0, -1.0]))
+    assert env._claw_target == pytest.approx(-0.7)
+    for _ in range(3):
+        env.step(np.array([0.0, 0.0, 0.0, 1.0]))
+    assert env._claw_target == pytest.approx(-0.4)
+    for _ in range(20):  # c = 0 holds the target; the servo settles there
+        env.step(np.array([0.0, 0.0, 0.0, 0.0]))
+    assert env.data.qpos[claw] == pytest.approx(-0.4, abs=0.02)
+    with pytest.raises(ValueError, match="claw_rate"):
+        gym.make("Grasper3D-v2", claw_rate=0.0)
