@@ -38,7 +38,8 @@ def _v2_docstring(v1_doc: str) -> str:
         "| `lift_height` | `0.05` |": (
             "| `max_grip_speed` | `0.4` | grip-site speed at an action of 1 (m/s) |\n"
             "    | `claw_rate` | `None` | `None`: the claw action is v1's servo command; a number $r$: each step's claw"
-            " action $c$ moves the servo's target by $r c$ rad (within [-0.7, 0.1]) |\n    | `lift_height` | `0.05` |"
+            " action $c$ moves the servo's target by $r c$ rad (within [-0.7, 0.1]; the target is not observed) |\n"
+            "    | `lift_height` | `0.05` |"
         ),
     }
     doc = v1_doc
