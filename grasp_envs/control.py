@@ -17,6 +17,7 @@ if TYPE_CHECKING:
 
 VELOCITY_GAIN = 25.0  # joint-velocity servo gain (1/s); armature 1, so torque = gain * velocity error
 MAX_JOINT_SPEED = 10.0  # rad/s asked of any joint by the inverse kinematics
+_UP = np.array([0.0, 0.0, 1.0])
 
 
 def damped_least_squares(
@@ -69,7 +70,7 @@ def grip_down_commands(env: ArmEnv, grip_velocity: NDArray[np.float64]) -> NDArr
     axis, closing = xmat[:, 0], xmat[:, 1]
     jacr = np.zeros((3, model.nv))
     mujoco.mj_jacBody(model, data, None, jacr, model.body("forearm").id)
-    up = np.array([0.0, 0.0, 1.0])
+    up = _UP
     jacobian = np.vstack(
         [
             site_jacobian(env, "grip", dofs),

@@ -41,7 +41,7 @@ def wall_reacher3d_policy(env: ArmEnv) -> NDArray[np.float64]:
 
 
 GRIP_COMMAND = 0.05  # a gentle squeeze: 5 N m on the claw holds the 14 g cube; full torque squirts it out
-SERVO_GRIP_COMMAND = 0.5  # Grasper3D-v1's servo: aim at -0.1 rad, ~1 N m on the cube (more squeezes it out)
+SERVO_GRIP_COMMAND = 0.5  # v1/v2's servo: aim at -0.1 rad, ~0.5 N m on the cube (v2, 20 seeds: 0.3-1.0 all lift 14-17)
 APPROACH_SPEED, LIFT_SPEED = 0.35, 0.25  # m/s of the grip site
 
 
