@@ -15,6 +15,7 @@ from gymnasium.envs.registration import register, registry
 from grasp_envs.grasper3d_v0 import Grasper3DEnv
 from grasp_envs.grasper3d_v1 import Grasper3DEnv as Grasper3DEnvV1
 from grasp_envs.grasper3d_v2 import Grasper3DEnv as Grasper3DEnvV2
+from grasp_envs.grasper3d_v3 import Grasper3DEnv as Grasper3DEnvV3
 from grasp_envs.reacher2d_v0 import Reacher2DEnv
 from grasp_envs.reacher2d_v1 import Reacher2DEnv as Reacher2DEnvV1
 from grasp_envs.reacher3d_v0 import Reacher3DEnv
@@ -26,6 +27,7 @@ __all__ = [
     "Grasper3DEnv",
     "Grasper3DEnvV1",
     "Grasper3DEnvV2",
+    "Grasper3DEnvV3",
     "Reacher2DEnv",
     "Reacher2DEnvV1",
     "Reacher3DEnv",
@@ -35,7 +37,7 @@ __all__ = [
 
 # id -> (entry point, max_episode_steps, reward_threshold). Thresholds are measured returns of a solution:
 # the hand-written controllers of grasp_envs.scripted (mean of 20 seeded episodes: Reacher3D -8.2,
-# WallReacher3D -45.1, Grasper3D 91.7, Grasper3D-v1 214.9, Reacher2D-v1 5.4, Reacher3D-v1 30.6) and, for
+# WallReacher3D -45.1, Grasper3D 91.7, Grasper3D-v1 214.9, Grasper3D-v2 210.8, Grasper3D-v3 243.0, Reacher2D-v1 5.4, Reacher3D-v1 30.6) and, for
 # Reacher2D-v0, TRPOPlus after `make train` (-3.9; the controller's large torques cost -8.0 there).
 _SPECS = {
     "Reacher2D-v0": ("grasp_envs.reacher2d_v0:Reacher2DEnv", 50, -4.0),
@@ -45,6 +47,7 @@ _SPECS = {
     "Grasper3D-v0": ("grasp_envs.grasper3d_v0:Grasper3DEnv", 100, 90.0),
     "Grasper3D-v1": ("grasp_envs.grasper3d_v1:Grasper3DEnv", 100, 210.0),
     "Grasper3D-v2": ("grasp_envs.grasper3d_v2:Grasper3DEnv", 100, 210.0),
+    "Grasper3D-v3": ("grasp_envs.grasper3d_v3:Grasper3DEnv", 100, 240.0),
     "WallReacher3D-v0": ("grasp_envs.wall_reacher3d_v0:WallReacher3DEnv", 100, -45.0),
 }
 ENV_IDS = tuple(_SPECS)

@@ -89,4 +89,5 @@ SCRIPTED_POLICIES = {
     "Grasper3D-v0": grasper3d_policy,
     "Grasper3D-v1": grasper3d_policy,
     "Grasper3D-v2": grasper3d_policy,
+    "Grasper3D-v3": grasper3d_policy,
 }
