@@ -64,6 +64,9 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # why does the combination hurt? (docs/results.md): CG run closer to convergence, or cut shorter
     "replay_cg25": ("trpo_plus", {"replay_memory": 3, "cg_warm_start": False, "cg_max_steps": 25}),
     "both_cg5": ("trpo_plus", {"replay_memory": 3, "cg_warm_start": True, "cg_max_steps": 5}),
+    # tuning the best variant on Reacher2D-v1 (docs/results.md): a larger trust region, or twice the updates
+    "warm_kl02": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "target_kl": 0.02}),
+    "warm_n128": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "n_steps": 128, "batch_size": 128}),
 }
 STUDY_VARIANTS = ["plain", "replay", "warm", "both", "trpo", "ppo"]  # the default set of `run`
 CHUNKS = 25

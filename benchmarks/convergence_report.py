@@ -25,6 +25,8 @@ LABELS = {
     "ppo": "SB3 PPO",
     "replay_cg25": "TRPOPlus + replay, 25 CG iterations",
     "both_cg5": "TRPOPlus + both, 5 CG iterations",
+    "warm_kl02": "TRPOPlus + warm start, target_kl 0.02",
+    "warm_n128": "TRPOPlus + warm start, n_steps 128",
 }
 AGENT_EPISODES = 20
 BOOTSTRAP_SEED = 0
@@ -284,7 +286,7 @@ def export_agents(out: Path, envs: list[str], folder: Path) -> None:
     manifest: dict[str, Any] = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
     for env_id in envs:
         candidates = []
-        for variant in ("plain", "replay", "warm", "both", "replay_cg25", "both_cg5"):
+        for variant in (v for v, (algo, _) in VARIANTS.items() if algo == "trpo_plus"):
             for seed, rows in complete_runs(out, env_id, variant).items():
                 candidates.append((rows[-1]["eval_success"], rows[-1]["eval_return"], variant, seed))
         if not candidates:

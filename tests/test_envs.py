@@ -175,7 +175,7 @@ def test_scripted_controller_reaches_target(env_id: str) -> None:
         assert info["is_success"], f"seed {seed}: distance {info['distance']:.3f}"
 
 
-@pytest.mark.parametrize("env_id", ["Grasper3D-v0", "Grasper3D-v1", "Grasper3D-v2"])
+@pytest.mark.parametrize("env_id", ["Grasper3D-v0", "Grasper3D-v1", "Grasper3D-v2", "Grasper3D-v3"])
 def test_scripted_controller_grasps_and_lifts_cube(env_id: str) -> None:
     env = gym.make(env_id)
     policy = SCRIPTED_POLICIES[env_id]
@@ -231,8 +231,12 @@ def _episode_return(reward_mode: str, seed: int, lift: bool, env_id: str = "Gras
 
 
 # measured: v0 7 episodes, lift beats touch by 12 to 80 (mean ~46) although the lift starts late in the episode;
-# v1 (lift and hold weights 4): 7 episodes, 113 to 291 (mean 181); v2 (v1's reward): 7 episodes, 105 to 273 (mean 174)
-@pytest.mark.parametrize(("env_id", "min_margin"), [("Grasper3D-v0", 30.0), ("Grasper3D-v1", 100.0), ("Grasper3D-v2", 100.0)])
+# v1 (lift and hold weights 4): 7 episodes, 113 to 291 (mean 181); v2 (v1's reward): 7 episodes, 105 to 273 (mean 174);
+# v3 (v2 + squeeze, paid on the floor too): as v2
+@pytest.mark.parametrize(
+    ("env_id", "min_margin"),
+    [("Grasper3D-v0", 30.0), ("Grasper3D-v1", 100.0), ("Grasper3D-v2", 100.0), ("Grasper3D-v3", 100.0)],
+)
 def test_staged_reward_pays_lifting_more_than_holding_the_cube_down(env_id: str, min_margin: float) -> None:
     """Grasping and lifting beats grasping and staying on the floor (the farming the thesis' reward allowed)."""
     margins = []
@@ -325,3 +329,42 @@ def test_grasper_v2_claw_rate_moves_the_servo_target() -> None:
     assert env.data.qpos[claw] == pytest.approx(-0.4, abs=0.02)
     with pytest.raises(ValueError, match="claw_rate"):
         gym.make("Grasper3D-v2", claw_rate=0.0)
+
+
+def test_grasper_v3_is_v2_plus_a_squeeze_term() -> None:
+    """v3 = v2's dynamics, observation and reward, plus the claw torque observed and 2 min(max(tau, 0) / 0.5, 1)
+    while grasped; a firmer grip earns more of it."""
+    from grasp_envs import scripted
+
+    v2, v3 = gym.make("Grasper3D-v2"), gym.make("Grasper3D-v3")
+    obs2, _ = v2.reset(seed=1)
+    obs3, _ = v3.reset(seed=1)
+    squeezed = 0
+    for _ in range(100):
+        action = scripted.grasper3d_policy(v2.unwrapped)
+        obs2, reward2, *_ = v2.step(action)
+        obs3, reward3, *_, info3 = v3.step(action)
+        np.testing.assert_array_equal(obs3[:31], obs2)
+        torque = v3.unwrapped.data.actuator_force[v3.unwrapped.model.actuator("claw").id]
+        assert obs3[31] == torque
+        grasped = v3.unwrapped._is_grasped(v3.unwrapped._contacts)
+        assert info3["reward_squeeze"] == pytest.approx(2.0 * grasped * min(max(torque, 0.0) / 0.5, 1.0))
+        assert reward3 == pytest.approx(reward2 + info3["reward_squeeze"])
+        squeezed += info3["reward_squeeze"] > 0
+    assert squeezed >= 20
+
+    def squeeze_per_grasped_step(command: float) -> float:
+        paid = []
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(scripted, "SERVO_GRIP_COMMAND", command)
+            for seed in range(3):
+                v3.reset(seed=seed)
+                for _ in range(100):
+                    *_, info = v3.step(scripted.grasper3d_policy(v3.unwrapped))
+                    if v3.unwrapped._is_grasped(v3.unwrapped._contacts):
+                        paid.append(info["reward_squeeze"])
+        return float(np.mean(paid))
+
+    assert squeeze_per_grasped_step(1.0) > squeeze_per_grasped_step(0.42) + 0.5
+    with pytest.raises(ValueError, match="squeeze_torque"):
+        gym.make("Grasper3D-v3", squeeze_torque=0.0)
