@@ -67,7 +67,11 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # tuning the best variant on Reacher2D-v1 (docs/results.md): a larger trust region, or twice the updates
     "warm_kl02": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "target_kl": 0.02}),
     "warm_n128": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "n_steps": 128, "batch_size": 128}),
+    # Grasper3D-v3: a quarter of the training episodes start along the scripted grasp (Popov et al. 2017)
+    "warm_scripted25": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True}),
 }
+# variants that change the training envs only (the evaluation envs keep the YAML's env_kwargs)
+TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {"warm_scripted25": {"scripted_start_prob": 0.25}}
 STUDY_VARIANTS = ["plain", "replay", "warm", "both", "trpo", "ppo"]  # the default set of `run`
 CHUNKS = 25
 EVAL_EPISODES = 20
@@ -149,7 +153,10 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
     algo_class = algorithms()[algo]
     monitor = {"info_keywords": ("is_success",)}
     env_kwargs = params.pop("env_kwargs", None)  # the YAML's env_kwargs, as rl-zoo3 applies them
-    venv = make_vec_env(env_id, n_envs=n_envs, seed=seed + 100_000 * len(rows), env_kwargs=env_kwargs, monitor_kwargs=monitor)
+    train_env_kwargs = {**(env_kwargs or {}), **TRAIN_ENV_KWARGS.get(variant, {})}
+    venv = make_vec_env(
+        env_id, n_envs=n_envs, seed=seed + 100_000 * len(rows), env_kwargs=train_env_kwargs, monitor_kwargs=monitor
+    )
     model_path, stats_path = folder / "model.zip", folder / "vecnormalize.pkl"
     if rows:
         env = VecNormalize.load(str(stats_path), venv) if normalize else venv

@@ -27,6 +27,7 @@ LABELS = {
     "both_cg5": "TRPOPlus + both, 5 CG iterations",
     "warm_kl02": "TRPOPlus + warm start, target_kl 0.02",
     "warm_n128": "TRPOPlus + warm start, n_steps 128",
+    "warm_scripted25": "TRPOPlus + warm start, 25 % scripted starts",
 }
 AGENT_EPISODES = 20
 BOOTSTRAP_SEED = 0

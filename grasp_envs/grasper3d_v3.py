@@ -16,6 +16,7 @@ from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D
 # seeded episodes, median torque while grasped): command 0.42 gives 0.21 N m, 0.5 gives 0.29, 0.7 gives 0.51, 1.0
 # gives 0.78; the halves first touch the cube at a command of about 0.375.
 SQUEEZE_TORQUE = 0.5
+SCRIPTED_START_STEPS = 100  # a scripted start runs the scripted grasp for 0-99 steps (it grasps at steps 53-86)
 
 
 def _v3_docstring(v2_doc: str) -> str:
@@ -40,6 +41,8 @@ def _v3_docstring(v2_doc: str) -> str:
             "    | `reward_floor_weight` | `1.0` | weight of `reward_floor` (staged) |\n"
             "    | `reward_squeeze_weight` | `2.0` | weight of `reward_squeeze` (staged) |\n"
             "    | `squeeze_torque` | `0.5` | claw servo torque at which `reward_squeeze` saturates (N m) |\n"
+            "    | `scripted_start_prob` | `0.0` | probability that a reset goes on with the scripted grasp for a uniform"
+            " 0-99 steps, so the episode starts somewhere along a demonstration (a training aid; evaluate with 0) |\n"
         ),
     }
     doc = v2_doc
@@ -78,10 +81,13 @@ class Grasper3DEnv(grasper3d_v2.Grasper3DEnv):
         claw_rate: float | None = None,
         reward_squeeze_weight: float = 2.0,
         squeeze_torque: float = SQUEEZE_TORQUE,
+        scripted_start_prob: float = 0.0,
         **kwargs: Any,
     ):
         if not squeeze_torque > 0:
             raise ValueError(f"squeeze_torque must be positive, got {squeeze_torque!r}")
+        if not 0.0 <= scripted_start_prob <= 1.0:
+            raise ValueError(f"scripted_start_prob must be in [0, 1], got {scripted_start_prob!r}")
         super().__init__(
             xml_file, frame_skip, default_camera_config, reward_mode, reward_reach_weight, reward_grasp_weight,
             reward_lift_weight, reward_hold_weight, reward_control_weight, terminate_on_success, reset_noise_scale,
@@ -91,8 +97,9 @@ class Grasper3DEnv(grasper3d_v2.Grasper3DEnv):
             self, xml_file, frame_skip, default_camera_config, reward_mode, reward_reach_weight, reward_grasp_weight,
             reward_lift_weight, reward_hold_weight, reward_control_weight, terminate_on_success, reset_noise_scale,
             lift_height, reward_floor_weight, max_grip_speed, claw_rate, reward_squeeze_weight, squeeze_torque,
-            **kwargs,
+            scripted_start_prob, **kwargs,
         )  # fmt: skip
+        self._scripted_start_prob = float(scripted_start_prob)
         self._reward_squeeze_weight = reward_squeeze_weight
         self._squeeze_torque = float(squeeze_torque)
         self._claw_actuator = int(self.model.actuator("claw").id)
@@ -112,3 +119,16 @@ class Grasper3DEnv(grasper3d_v2.Grasper3DEnv):
             info["reward_squeeze"] = self._reward_squeeze_weight * float(self._is_grasped(self._contacts)) * squeeze
             reward += info["reward_squeeze"]
         return reward, info
+
+    def reset_model(self) -> NDArray[np.float64]:
+        observation = super().reset_model()
+        # random numbers are drawn only when the option is on, so default resets stay v3's
+        if self._scripted_start_prob > 0 and self.np_random.uniform() < self._scripted_start_prob:
+            from grasp_envs.scripted import grasper3d_policy
+
+            for _ in range(int(self.np_random.integers(SCRIPTED_START_STEPS))):
+                if self._simulate(self._checked_action(grasper3d_policy(self))):  # unstable: start from scratch
+                    return super().reset_model()
+                self._get_obs()  # refreshes the contact summary the scripted grasp reads
+            observation = self._get_obs()
+        return observation
