@@ -368,3 +368,20 @@ def test_grasper_v3_is_v2_plus_a_squeeze_term() -> None:
     assert squeeze_per_grasped_step(1.0) > squeeze_per_grasped_step(0.42) + 0.5
     with pytest.raises(ValueError, match="squeeze_torque"):
         gym.make("Grasper3D-v3", squeeze_torque=0.0)
+
+
+def test_grasper_v3_scripted_starts() -> None:
+    """scripted_start_prob p: a reset goes on with the scripted grasp for 0-99 steps with probability p (seeded);
+    p = 0 draws no random numbers, so its resets are v3's default ones."""
+    default, off = gym.make("Grasper3D-v3"), gym.make("Grasper3D-v3", scripted_start_prob=0.0)
+    always = gym.make("Grasper3D-v3", scripted_start_prob=1.0)
+    started_grasped = 0
+    for seed in range(16):
+        np.testing.assert_array_equal(default.reset(seed=seed)[0], off.reset(seed=seed)[0])
+        first, _ = always.reset(seed=seed)
+        np.testing.assert_array_equal(first, always.reset(seed=seed)[0])
+        assert np.all(np.isfinite(first))
+        started_grasped += always.unwrapped._is_grasped(always.unwrapped._contacts)
+    assert started_grasped >= 2  # measured: 4 of 16 (the scripted grasp closes at steps 53-86)
+    with pytest.raises(ValueError, match="scripted_start_prob"):
+        gym.make("Grasper3D-v3", scripted_start_prob=1.5)
