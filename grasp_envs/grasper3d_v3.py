@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 
 from grasp_envs import grasper3d_v2
 from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D
+from grasp_envs.scripted import grasper3d_policy
 
 # Claw servo torque (N m) at which reward_squeeze saturates. Measured with the scripted grasp (Grasper3D-v2, 10
 # seeded episodes, median torque while grasped): command 0.42 gives 0.21 N m, 0.5 gives 0.29, 0.7 gives 0.51, 1.0
@@ -124,11 +125,8 @@ class Grasper3DEnv(grasper3d_v2.Grasper3DEnv):
         observation = super().reset_model()
         # random numbers are drawn only when the option is on, so default resets stay v3's
         if self._scripted_start_prob > 0 and self.np_random.uniform() < self._scripted_start_prob:
-            from grasp_envs.scripted import grasper3d_policy
-
             for _ in range(int(self.np_random.integers(SCRIPTED_START_STEPS))):
                 if self._simulate(self._checked_action(grasper3d_policy(self))):  # unstable: start from scratch
                     return super().reset_model()
-                self._get_obs()  # refreshes the contact summary the scripted grasp reads
             observation = self._get_obs()
         return observation
