@@ -128,6 +128,8 @@ class Grasper3DEnv(ArmEnv):
       claw angle, cube-relative claw positions and claw-cube contacts observed; cube in a disc of radius 0.1 m.
     """
 
+    observation_dim = 31  # versions that observe more override it
+
     def __init__(
         self,
         xml_file: str = "grasper3d.xml",
@@ -163,7 +165,7 @@ class Grasper3DEnv(ArmEnv):
         self._lift_height = lift_height
         self._lift_bonus_paid = False
         self._contacts = {"right": 0, "left": 0, "floor": 0, "claw_claw": 0}
-        ArmEnv.__init__(self, xml_file, frame_skip, default_camera_config, observation_dim=31, **kwargs)
+        ArmEnv.__init__(self, xml_file, frame_skip, default_camera_config, self.observation_dim, **kwargs)
 
         self._claw_geoms = {side: self.geom_mask([f"claw_{side}_{part}" for part in CLAW_PARTS]) for side in CLAW_SIDES}
         self._bottom_claw_geoms = self.geom_mask([f"claw_{s}_{p}" for s in CLAW_SIDES for p in CLAW_PARTS if "bottom" in p])

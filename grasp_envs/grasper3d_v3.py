@@ -6,7 +6,6 @@ from typing import Any
 
 import numpy as np
 from gymnasium import utils
-from gymnasium.spaces import Box
 from numpy.typing import NDArray
 
 from grasp_envs import grasper3d_v2
@@ -63,6 +62,8 @@ def _v3_docstring(v2_doc: str) -> str:
 class Grasper3DEnv(grasper3d_v2.Grasper3DEnv):
     __doc__ = _v3_docstring(grasper3d_v2.Grasper3DEnv.__doc__ or "")
 
+    observation_dim = 32  # v2's 31 and the claw torque
+
     def __init__(
         self,
         xml_file: str = "grasper3d_v1.xml",
@@ -104,7 +105,6 @@ class Grasper3DEnv(grasper3d_v2.Grasper3DEnv):
         self._reward_squeeze_weight = reward_squeeze_weight
         self._squeeze_torque = float(squeeze_torque)
         self._claw_actuator = int(self.model.actuator("claw").id)
-        self.observation_space = Box(low=-np.inf, high=np.inf, shape=(32,), dtype=np.float64)
 
     def claw_torque(self) -> float:
         """The claw servo's torque on ``claw_right`` (N m, positive closes)."""
