@@ -42,6 +42,7 @@ BUDGETS = {
     "Grasper3D-v1": 5_000_000,
     "Grasper3D-v2": 5_000_000,
     "Grasper3D-v3": 5_000_000,
+    "Grasper3D-v4": 5_000_000,
 }
 TARGETS = {
     "Reacher2D-v0": 0.9,
@@ -53,6 +54,7 @@ TARGETS = {
     "Grasper3D-v1": 0.9,
     "Grasper3D-v2": 0.9,
     "Grasper3D-v3": 0.9,
+    "Grasper3D-v4": 0.9,
 }
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "plain": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": False}),

@@ -16,6 +16,7 @@ from grasp_envs.grasper3d_v0 import Grasper3DEnv
 from grasp_envs.grasper3d_v1 import Grasper3DEnv as Grasper3DEnvV1
 from grasp_envs.grasper3d_v2 import Grasper3DEnv as Grasper3DEnvV2
 from grasp_envs.grasper3d_v3 import Grasper3DEnv as Grasper3DEnvV3
+from grasp_envs.grasper3d_v4 import Grasper3DEnv as Grasper3DEnvV4
 from grasp_envs.reacher2d_v0 import Reacher2DEnv
 from grasp_envs.reacher2d_v1 import Reacher2DEnv as Reacher2DEnvV1
 from grasp_envs.reacher3d_v0 import Reacher3DEnv
@@ -28,6 +29,7 @@ __all__ = [
     "Grasper3DEnvV1",
     "Grasper3DEnvV2",
     "Grasper3DEnvV3",
+    "Grasper3DEnvV4",
     "Reacher2DEnv",
     "Reacher2DEnvV1",
     "Reacher3DEnv",
@@ -49,6 +51,7 @@ _SPECS = {
     "Grasper3D-v1": ("grasp_envs.grasper3d_v1:Grasper3DEnv", 100, 210.0),
     "Grasper3D-v2": ("grasp_envs.grasper3d_v2:Grasper3DEnv", 100, 210.0),
     "Grasper3D-v3": ("grasp_envs.grasper3d_v3:Grasper3DEnv", 100, 240.0),
+    "Grasper3D-v4": ("grasp_envs.grasper3d_v4:Grasper3DEnv", 100, 250.0),
     "WallReacher3D-v0": ("grasp_envs.wall_reacher3d_v0:WallReacher3DEnv", 100, -45.0),
 }
 ENV_IDS = tuple(_SPECS)

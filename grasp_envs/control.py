@@ -28,6 +28,12 @@ def damped_least_squares(
     return jacobian.T @ np.linalg.solve(jjt + damping * np.eye(len(jjt)), error)
 
 
+def damped_pseudo_inverse(jacobian: NDArray[np.float64], damping: float = 1e-3) -> NDArray[np.float64]:
+    """``J^T (J J^T + damping I)^{-1}``, the matrix ``damped_least_squares`` applies to an error."""
+    jjt = jacobian @ jacobian.T
+    return jacobian.T @ np.linalg.inv(jjt + damping * np.eye(len(jjt)))
+
+
 def velocity_servo(env: ArmEnv, dofs: NDArray[np.int64], desired_velocity: NDArray[np.float64]) -> NDArray[np.float64]:
     """Actuator commands (torque / gear) that drive the joints ``dofs`` towards ``desired_velocity``.
 
@@ -56,13 +62,21 @@ def reach(
     return velocity_servo(env, dofs, np.clip(velocity, -MAX_JOINT_SPEED, MAX_JOINT_SPEED))
 
 
-def grip_down_commands(env: ArmEnv, grip_velocity: NDArray[np.float64]) -> NDArray[np.float64]:
+def grip_down_commands(
+    env: ArmEnv, grip_velocity: NDArray[np.float64], grip_priority: bool = False
+) -> NDArray[np.float64]:
     """Commands of the Grasper's five arm motors that move its grip site at ``grip_velocity`` (m/s) while
     turning the forearm to point down and the claw's closing axis to lie horizontal.
 
     The task has five rows for five joints: the grip velocity (3), the closing axis' vertical component
     driven to zero (1) and the forearm axis driven towards -z (1, weighted 0.2). The claw's yaw about the
     vertical stays free, as in the scripted grasp.
+
+    ``grip_priority=True``: task-priority inverse kinematics (Nakamura 1991; Siciliano and Slotine 1991).
+    The grip velocity and the horizontal closing axis are met first; the forearm turns down only within the
+    one joint direction they leave free (their Jacobian's null space). With one stack of five rows, where the
+    arm cannot move the grip with the forearm vertical the two compete and the grip stalls: the scripted
+    grasp lifted the cube only 3.9 cm at 6.4 cm from the axis, and did not grasp cubes within 4.3 cm of it.
     """
     model, data = env.model, env.data
     dofs = np.arange(5)
@@ -71,13 +85,15 @@ def grip_down_commands(env: ArmEnv, grip_velocity: NDArray[np.float64]) -> NDArr
     jacr = np.zeros((3, model.nv))
     mujoco.mj_jacBody(model, data, None, jacr, model.body("forearm").id)
     up = _UP
-    jacobian = np.vstack(
-        [
-            site_jacobian(env, "grip", dofs),
-            np.cross(closing, up) @ jacr[:, dofs],
-            0.2 * np.cross(axis, up) @ jacr[:, dofs],
-        ]
-    )
-    error = np.concatenate([grip_velocity, [-4.0 * closing @ up], [0.2 * 4.0 * (-1.0 - axis @ up)]])
-    velocity = np.clip(damped_least_squares(jacobian, error, damping=1e-4), -MAX_JOINT_SPEED, MAX_JOINT_SPEED)
-    return velocity_servo(env, dofs, velocity)
+    primary = np.vstack([site_jacobian(env, "grip", dofs), np.cross(closing, up) @ jacr[:, dofs]])
+    primary_error = np.concatenate([grip_velocity, [-4.0 * closing @ up]])
+    down, down_error = np.cross(axis, up) @ jacr[:, dofs], 4.0 * (-1.0 - axis @ up)
+    if grip_priority:
+        velocity = damped_least_squares(primary, primary_error, damping=1e-4)
+        null = np.eye(len(dofs)) - damped_pseudo_inverse(primary, damping=1e-4) @ primary
+        down_null = (down @ null)[None, :]
+        velocity += null @ damped_least_squares(down_null, np.array([down_error - down @ velocity]), damping=1e-3)
+    else:
+        jacobian = np.vstack([primary, 0.2 * down])
+        velocity = damped_least_squares(jacobian, np.append(primary_error, 0.2 * down_error), damping=1e-4)
+    return velocity_servo(env, dofs, np.clip(velocity, -MAX_JOINT_SPEED, MAX_JOINT_SPEED))

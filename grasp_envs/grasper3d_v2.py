@@ -60,6 +60,8 @@ def _v2_docstring(v1_doc: str) -> str:
 class Grasper3DEnv(grasper3d_v1.Grasper3DEnv):
     __doc__ = _v2_docstring(grasper3d_v1.Grasper3DEnv.__doc__ or "")
 
+    grip_priority = False  # the inverse kinematics' rows: one weighted stack (see grip_down_commands)
+
     def __init__(
         self,
         xml_file: str = "grasper3d_v1.xml",
@@ -102,7 +104,7 @@ class Grasper3DEnv(grasper3d_v1.Grasper3DEnv):
         return self.action_space
 
     def _simulate(self, action: NDArray[np.float64]) -> bool:
-        arm = grip_down_commands(self, self.max_grip_speed * action[:3])
+        arm = grip_down_commands(self, self.max_grip_speed * action[:3], self.grip_priority)
         claw = action[3]
         if self._claw_rate is not None:  # the action moves the servo's target angle; ctrl aims the servo there
             self._claw_target = float(np.clip(self._claw_target + self._claw_rate * claw, *CLAW_TARGET_RANGE))
