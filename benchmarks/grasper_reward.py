@@ -53,9 +53,7 @@ class EpisodeStats(BaseCallback):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=list(ALGOS), default="trpo")
-    parser.add_argument(
-        "--env", default="Grasper3D-v0", choices=["Grasper3D-v0", "Grasper3D-v1", "Grasper3D-v2", "Grasper3D-v3"]
-    )
+    parser.add_argument("--env", default="Grasper3D-v0", choices=[f"Grasper3D-v{version}" for version in range(5)])
     parser.add_argument("--reward-mode", choices=["staged", "thesis"], default="staged")
     parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict of further env kwargs")
     parser.add_argument("--model-kwargs", type=json.loads, default={}, help="JSON dict of further algorithm kwargs")

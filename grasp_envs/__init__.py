@@ -40,8 +40,8 @@ __all__ = [
 # id -> (entry point, max_episode_steps, reward_threshold). Thresholds are measured returns of a solution:
 # the hand-written controllers of grasp_envs.scripted (mean of 20 seeded episodes: Reacher3D -8.2,
 # WallReacher3D -45.1, Grasper3D 91.7, Grasper3D-v1 214.9, Grasper3D-v2 210.8, Grasper3D-v3 243.0,
-# Reacher2D-v1 5.4, Reacher3D-v1 30.6) and, for Reacher2D-v0, TRPOPlus after `make train` (-3.9; the
-# controller's large torques cost -8.0 there).
+# Grasper3D-v4 253.4, Reacher2D-v1 5.4, Reacher3D-v1 30.6) and, for Reacher2D-v0, TRPOPlus after
+# `make train` (-3.9; the controller's large torques cost -8.0 there).
 _SPECS = {
     "Reacher2D-v0": ("grasp_envs.reacher2d_v0:Reacher2DEnv", 50, -4.0),
     "Reacher2D-v1": ("grasp_envs.reacher2d_v1:Reacher2DEnv", 50, 5.0),

@@ -62,11 +62,14 @@ def reach(
     return velocity_servo(env, dofs, np.clip(velocity, -MAX_JOINT_SPEED, MAX_JOINT_SPEED))
 
 
-def grip_down_commands(
-    env: ArmEnv, grip_velocity: NDArray[np.float64], grip_priority: bool = False
-) -> NDArray[np.float64]:
-    """Commands of the Grasper's five arm motors that move its grip site at ``grip_velocity`` (m/s) while
-    turning the forearm to point down and the claw's closing axis to lie horizontal.
+def grip_down_commands(env: ArmEnv, grip_velocity: NDArray[np.float64], grip_priority: bool = False) -> NDArray[np.float64]:
+    """Commands of the Grasper's five arm motors: the velocity servo driving ``grip_down_velocity``."""
+    return velocity_servo(env, np.arange(5), grip_down_velocity(env, grip_velocity, grip_priority))
+
+
+def grip_down_velocity(env: ArmEnv, grip_velocity: NDArray[np.float64], grip_priority: bool = False) -> NDArray[np.float64]:
+    """Velocities of the Grasper's five arm joints (rad/s) that move its grip site at ``grip_velocity`` (m/s)
+    while turning the forearm to point down and the claw's closing axis to lie horizontal.
 
     The task has five rows for five joints: the grip velocity (3), the closing axis' vertical component
     driven to zero (1) and the forearm axis driven towards -z (1, weighted 0.2). The claw's yaw about the
@@ -96,4 +99,4 @@ def grip_down_commands(
     else:
         jacobian = np.vstack([primary, 0.2 * down])
         velocity = damped_least_squares(jacobian, np.append(primary_error, 0.2 * down_error), damping=1e-4)
-    return velocity_servo(env, dofs, np.clip(velocity, -MAX_JOINT_SPEED, MAX_JOINT_SPEED))
+    return np.clip(velocity, -MAX_JOINT_SPEED, MAX_JOINT_SPEED)

@@ -105,4 +105,3 @@ class Grasper3DEnv(grasper3d_v3.Grasper3DEnv):
         forearm = self.data.body("forearm").xmat.reshape(3, 3)  # columns: x along the forearm, z the hinge axis
         offset = forearm.T @ (cube - right - t * span)
         return 0.0 < t < 1.0 and abs(offset[0]) <= BETWEEN_TOLERANCE and abs(offset[2]) <= BETWEEN_TOLERANCE
-
