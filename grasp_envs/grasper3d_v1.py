@@ -124,10 +124,16 @@ class Grasper3DEnv(grasper3d_v0.Grasper3DEnv):
         """Whether the cube's centre lies between the claw halves: its projection on the segment from the
         right to the left claw site falls inside the segment, at most 2 cm away from it (a cube held by the top
         or bottom capsules only sits ~1 cm off the sites' plane; a cube pressed from above sits >= 3 cm away)."""
+        t, offset = self._cube_off_claw_segment()
+        return 0.0 < t < 1.0 and float(np.linalg.norm(offset)) < BETWEEN_TOLERANCE
+
+    def _cube_off_claw_segment(self) -> tuple[float, NDArray[np.float64]]:
+        """Where the cube's centre projects on the segment from the right to the left claw site (0 at the right
+        site, 1 at the left) and its offset from that projection (world frame, m)."""
         right, left, cube = self.site_pos("claw_right"), self.site_pos("claw_left"), self.cube_pos()
         span = left - right
         t = float((cube - right) @ span / (span @ span))
-        return 0.0 < t < 1.0 and float(np.linalg.norm(cube - right - t * span)) < BETWEEN_TOLERANCE
+        return t, cube - right - t * span
 
     def _reach_distance(self) -> float:
         """The thesis' claw terms: |right - cube| + |left - cube| - |left - right| (m), zero exactly when the cube's

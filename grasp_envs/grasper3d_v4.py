@@ -3,12 +3,7 @@ grasp test accepts every grip by both claw halves."""
 
 from __future__ import annotations
 
-from typing import Any
-
-from gymnasium import utils
-
 from grasp_envs import grasper3d_v3
-from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D
 
 # How far (m) the cube's centre may lie from the segment between the claw sites, along the forearm and along
 # the claw's hinge axis, each. The inner capsules span 1.25 cm either side of the sites along the forearm and
@@ -57,51 +52,14 @@ def _v4_docstring(v3_doc: str) -> str:
 class Grasper3DEnv(grasper3d_v3.Grasper3DEnv):
     __doc__ = _v4_docstring(grasper3d_v3.Grasper3DEnv.__doc__ or "")
 
-    grip_priority = True
-
-    def __init__(
-        self,
-        xml_file: str = "grasper3d_v1.xml",
-        frame_skip: int = 2,
-        default_camera_config: dict[str, Any] = DEFAULT_CAMERA_CONFIG_3D,
-        reward_mode: str = "staged",
-        reward_reach_weight: float = 1.0,
-        reward_grasp_weight: float = 4.0,
-        reward_lift_weight: float = 4.0,
-        reward_hold_weight: float = 4.0,
-        reward_control_weight: float | None = None,
-        terminate_on_success: bool | None = None,
-        reset_noise_scale: float = 0.1,
-        lift_height: float = 0.05,
-        reward_floor_weight: float = 1.0,
-        max_grip_speed: float = grasper3d_v3.grasper3d_v2.MAX_GRIP_SPEED,
-        claw_rate: float | None = None,
-        reward_squeeze_weight: float = 2.0,
-        squeeze_torque: float = grasper3d_v3.SQUEEZE_TORQUE,
-        scripted_start_prob: float = 0.0,
-        **kwargs: Any,
-    ):
-        super().__init__(
-            xml_file, frame_skip, default_camera_config, reward_mode, reward_reach_weight, reward_grasp_weight,
-            reward_lift_weight, reward_hold_weight, reward_control_weight, terminate_on_success, reset_noise_scale,
-            lift_height, reward_floor_weight, max_grip_speed, claw_rate, reward_squeeze_weight, squeeze_torque,
-            scripted_start_prob, **kwargs,
-        )  # fmt: skip
-        utils.EzPickle.__init__(
-            self, xml_file, frame_skip, default_camera_config, reward_mode, reward_reach_weight, reward_grasp_weight,
-            reward_lift_weight, reward_hold_weight, reward_control_weight, terminate_on_success, reset_noise_scale,
-            lift_height, reward_floor_weight, max_grip_speed, claw_rate, reward_squeeze_weight, squeeze_torque,
-            scripted_start_prob, **kwargs,
-        )  # fmt: skip
+    grip_priority = True  # v3's arguments and defaults: no __init__ of its own
 
     def cube_between_claws(self) -> bool:
         """Whether the cube's centre lies between the claw halves: its projection on the segment from the right
         to the left claw site falls inside the segment, and its offset from the segment is at most 2.5 cm along
         the forearm and along the claw's hinge axis, each (a cube pressed from beyond the tips is >= 3 cm out
         along the forearm)."""
-        right, left, cube = self.site_pos("claw_right"), self.site_pos("claw_left"), self.cube_pos()
-        span = left - right
-        t = float((cube - right) @ span / (span @ span))
+        t, offset_world = self._cube_off_claw_segment()
         forearm = self.data.body("forearm").xmat.reshape(3, 3)  # columns: x along the forearm, z the hinge axis
-        offset = forearm.T @ (cube - right - t * span)
+        offset = forearm.T @ offset_world
         return 0.0 < t < 1.0 and abs(offset[0]) <= BETWEEN_TOLERANCE and abs(offset[2]) <= BETWEEN_TOLERANCE
