@@ -71,6 +71,18 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "warm_n128": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "n_steps": 128, "batch_size": 128}),
     # Grasper3D-v3: a quarter of the training episodes start along the scripted grasp (Popov et al. 2017)
     "warm_scripted25": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True}),
+    # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
+    # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
+    "warm_sde": (
+        "trpo_plus",
+        {
+            "replay_memory": 0,
+            "cg_warm_start": True,
+            "use_sde": True,
+            "sde_sample_freq": 100,
+            "policy_kwargs": {"log_std_init": -2.0},
+        },
+    ),
 }
 # variants that change the training envs only (the evaluation envs keep the YAML's env_kwargs)
 TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {"warm_scripted25": {"scripted_start_prob": 0.25}}
@@ -115,7 +127,8 @@ def _hyperparameters(algo: str, env_id: str, overrides: dict[str, Any]) -> dict[
     from sb3_trpo_plus.zoo import load_hyperparameters
 
     params = dict(load_hyperparameters(ROOT / "zoo_hyperparams" / f"{algo}.yml", algo, [env_id])[env_id])
-    params.update(overrides)
+    for key, value in overrides.items():  # a variant's policy_kwargs add to the YAML's (net_arch, activation)
+        params[key] = {**params.get(key, {}), **value} if key == "policy_kwargs" else value
     return params
 
 

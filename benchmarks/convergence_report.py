@@ -28,6 +28,7 @@ LABELS = {
     "warm_kl02": "TRPOPlus + warm start, target_kl 0.02",
     "warm_n128": "TRPOPlus + warm start, n_steps 128",
     "warm_scripted25": "TRPOPlus + warm start, 25 % scripted starts",
+    "warm_sde": "TRPOPlus + warm start, gSDE",
 }
 AGENT_EPISODES = 20
 BOOTSTRAP_SEED = 0
