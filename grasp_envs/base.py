@@ -32,6 +32,18 @@ _INSTABILITY_WARNINGS = np.array(
 )
 
 
+def derived_docstring(earlier_doc: str, earlier_id: str, replacements: dict[str, str], version_entry: str) -> str:
+    """A later version's docstring: ``earlier_doc`` with each replacement made once, and ``version_entry`` (its
+    Version History line) appended. A replacement whose text the earlier docstring no longer has raises, so an
+    edit of the earlier version cannot silently drop a later version's change."""
+    doc = earlier_doc
+    for old, new in replacements.items():
+        if old not in doc:
+            raise ValueError(f"{earlier_id}'s docstring lost {old!r}")
+        doc = doc.replace(old, new, 1)
+    return doc.rstrip() + version_entry
+
+
 def asset_path(xml_file: str) -> str:
     """Absolute path of a model: an existing path is used as given, a bare name is looked up in our assets."""
     if path.isabs(xml_file) or path.exists(xml_file):

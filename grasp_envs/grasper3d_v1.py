@@ -9,7 +9,7 @@ from gymnasium import utils
 from numpy.typing import NDArray
 
 from grasp_envs import grasper3d_v0
-from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D
+from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, derived_docstring
 
 BETWEEN_TOLERANCE = 0.02  # m, see Grasper3DEnv.cube_between_claws
 
@@ -54,14 +54,11 @@ def _v1_docstring(v0_doc: str) -> str:
             "    | `reward_floor_weight` | `1.0` | weight of `reward_floor` (staged) |\n"
         ),
     }
-    doc = v0_doc
-    for old, new in replacements.items():
-        if old not in doc:
-            raise ValueError(f"Grasper3D-v0's docstring lost {old!r}")
-        doc = doc.replace(old, new, 1)
-    return (
-        doc.rstrip()
-        + "\n    * v1: a claw that can hold the cube: a force-limited position servo (v0's 50 N m torque motor squeezes"
+    return derived_docstring(
+        v0_doc,
+        "Grasper3D-v0",
+        replacements,
+        "\n    * v1: a claw that can hold the cube: a force-limited position servo (v0's 50 N m torque motor squeezes"
         "\n      the 14 g cube out of the slanted claw) whose zero command holds the claw half open; the halves no"
         "\n      longer collide at their common hinge (in v0 they always did, so small torques could not open the"
         "\n      claw) and closing stops at 2°; lighter claw joints (armature 0.02, damping 0.5); forearm roll limited"
@@ -70,7 +67,7 @@ def _v1_docstring(v0_doc: str) -> str:
         "\n      means straddling the cube (the thesis' claw terms), lifting needs the cube between the halves, a claw"
         "\n      on the floor costs, grasp weight 4 (v0: 1), lift and hold weights 4 (v0: 2), so that reaching (about"
         "\n      85 per episode in v0, where the scripted lift earns 92) no longer competes with lifting. Observation"
-        "\n      and time limit are v0's.\n    "
+        "\n      and time limit are v0's.\n    ",
     )
 
 

@@ -10,7 +10,7 @@ from gymnasium.spaces import Box
 from numpy.typing import NDArray
 
 from grasp_envs import grasper3d_v1
-from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D
+from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, derived_docstring
 from grasp_envs.control import grip_down_commands
 
 MAX_GRIP_SPEED = 0.4  # m/s of the grip site at an action of 1
@@ -42,18 +42,15 @@ def _v2_docstring(v1_doc: str) -> str:
             "    | `lift_height` | `0.05` |"
         ),
     }
-    doc = v1_doc
-    for old, new in replacements.items():
-        if old not in doc:
-            raise ValueError(f"Grasper3D-v1's docstring lost {old!r}")
-        doc = doc.replace(old, new, 1)
-    return (
-        doc.rstrip()
-        + "\n    * v2: end-effector velocity actions (4) instead of joint torques (6), as Gymnasium Robotics' Fetch"
+    return derived_docstring(
+        v1_doc,
+        "Grasper3D-v1",
+        replacements,
+        "\n    * v2: end-effector velocity actions (4) instead of joint torques (6), as Gymnasium Robotics' Fetch"
         "\n      tasks and robosuite's operational-space controllers do; model, reward, observation and time limit"
         "\n      are v1's. With joint torques no policy got past reaching in 5M steps (v0) or 2.4M (v1, eleven designs):"
         "\n      a grasp needs five joints coordinated to point the claw down and descend within 2 cm of the cube,"
-        "\n      which Gaussian exploration in torque space does not find.\n    "
+        "\n      which Gaussian exploration in torque space does not find.\n    ",
     )
 
 

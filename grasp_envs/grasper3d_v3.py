@@ -9,7 +9,7 @@ from gymnasium import utils
 from numpy.typing import NDArray
 
 from grasp_envs import grasper3d_v2
-from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D
+from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, derived_docstring
 from grasp_envs.scripted import grasper3d_policy
 
 # Claw servo torque (N m) at which reward_squeeze saturates. Measured with the scripted grasp (Grasper3D-v2, 10
@@ -45,17 +45,14 @@ def _v3_docstring(v2_doc: str) -> str:
             " 0-99 steps, so the episode starts somewhere along a demonstration (a training aid; evaluate with 0) |\n"
         ),
     }
-    doc = v2_doc
-    for old, new in replacements.items():
-        if old not in doc:
-            raise ValueError(f"Grasper3D-v2's docstring lost {old!r}")
-        doc = doc.replace(old, new, 1)
-    return (
-        doc.rstrip()
-        + "\n    * v3: `reward_squeeze` and the claw torque observed. On v2 one TRPOPlus seed in four learnt to lift;"
+    return derived_docstring(
+        v2_doc,
+        "Grasper3D-v2",
+        replacements,
+        "\n    * v3: `reward_squeeze` and the claw torque observed. On v2 one TRPOPlus seed in four learnt to lift;"
         "\n      the others closed the claw just past the point where the halves touch the cube (commands 0.34-0.42,"
         "\n      contact at 0.375), a grip that the policy's claw noise opens while the arm rises, and nothing paid"
-        "\n      for squeezing harder.\n    "
+        "\n      for squeezing harder.\n    ",
     )
 
 

@@ -4,6 +4,7 @@ grasp test accepts every grip by both claw halves."""
 from __future__ import annotations
 
 from grasp_envs import grasper3d_v3
+from grasp_envs.base import derived_docstring
 
 # How far (m) the cube's centre may lie from the segment between the claw sites, along the forearm and along
 # the claw's hinge axis, each. The inner capsules span 1.25 cm either side of the sites along the forearm and
@@ -33,20 +34,17 @@ def _v4_docstring(v3_doc: str) -> str:
             " forearm\n    and along the hinge axis, each (v1-v3: 2 cm in all)."
         ),
     }
-    doc = v3_doc
-    for old, new in replacements.items():
-        if old not in doc:
-            raise ValueError(f"Grasper3D-v3's docstring lost {old!r}")
-        doc = doc.replace(old, new, 1)
-    return (
-        doc.rstrip()
-        + "\n    * v4: task-priority inverse kinematics and a per-axis grasp test; reward, observation, model and time"
+    return derived_docstring(
+        v3_doc,
+        "Grasper3D-v3",
+        replacements,
+        "\n    * v4: task-priority inverse kinematics and a per-axis grasp test; reward, observation, model and time"
         "\n      limit are v3's. v2's controller solved one stack of five rows, so where the arm cannot move the grip"
         "\n      with the forearm pointing down, the command stalled: the scripted grasp raised the cube only 3.9 cm"
         "\n      at 6.4 cm from the shoulder's axis and grasped none of the three cubes within 4.3 cm of it (20 seeded"
         "\n      episodes; v4: 6 cm, and one of the three lifted 12 cm). v1's 2 cm tolerance"
         "\n      refused real grips: a cube held 8 cm up, hanging from the bottom capsules 1.9-2.2 cm off the claw"
-        "\n      sites' plane, earned no lift and counted no success.\n    "
+        "\n      sites' plane, earned no lift and counted no success.\n    ",
     )
 
 
