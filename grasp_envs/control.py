@@ -93,8 +93,9 @@ def grip_down_velocity(env: ArmEnv, grip_velocity: NDArray[np.float64], grip_pri
     primary_error = np.concatenate([grip_velocity, [-4.0 * closing @ up]])
     down, down_error = np.cross(axis, up) @ jacr[:, dofs], 4.0 * (-1.0 - axis @ up)
     if grip_priority:
-        velocity = damped_least_squares(primary, primary_error, damping=1e-4)
-        null = np.eye(len(dofs)) - damped_pseudo_inverse(primary, damping=1e-4) @ primary
+        inverse = damped_pseudo_inverse(primary, damping=1e-4)
+        velocity = inverse @ primary_error
+        null = np.eye(len(dofs)) - inverse @ primary
         down_null = (down @ null)[None, :]
         velocity += null @ damped_least_squares(down_null, np.array([down_error - down @ velocity]), damping=1e-3)
     else:
