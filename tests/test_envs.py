@@ -460,3 +460,12 @@ def test_grasper_v4_between_test_is_per_forearm_axis(
         np.testing.assert_allclose(env.cube_pos(), target, atol=1e-12)
         results[env_id] = env.cube_between_claws()
     assert results == {"Grasper3D-v3": v3_between, "Grasper3D-v4": v4_between}
+
+
+def test_derived_docstring_refuses_a_lost_anchor() -> None:
+    """A later version's docstring is the earlier one edited in place; an edit whose text is gone raises."""
+    from grasp_envs.base import derived_docstring
+
+    assert derived_docstring("A b a\n", "X-v0", {"a": "c"}, "\n    * v1") == "A b c\n    * v1"
+    with pytest.raises(ValueError, match="X-v0's docstring lost 'z'"):
+        derived_docstring("A b a", "X-v0", {"z": "c"}, "")
