@@ -71,6 +71,9 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "warm_n128": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "n_steps": 128, "batch_size": 128}),
     # Grasper3D-v3: a quarter of the training episodes start along the scripted grasp (Popov et al. 2017)
     "warm_scripted25": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True}),
+    # Grasper3D-v4: half of the training episodes, and the warm start's share of that result (plain, 25 %)
+    "warm_scripted50": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True}),
+    "plain_scripted25": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": False}),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (
@@ -85,7 +88,11 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     ),
 }
 # variants that change the training envs only (the evaluation envs keep the YAML's env_kwargs)
-TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {"warm_scripted25": {"scripted_start_prob": 0.25}}
+TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
+    "warm_scripted25": {"scripted_start_prob": 0.25},
+    "warm_scripted50": {"scripted_start_prob": 0.5},
+    "plain_scripted25": {"scripted_start_prob": 0.25},
+}
 STUDY_VARIANTS = ["plain", "replay", "warm", "both", "trpo", "ppo"]  # the default set of `run`
 CHUNKS = 25
 EVAL_EPISODES = 20

@@ -28,6 +28,8 @@ LABELS = {
     "warm_kl02": "TRPOPlus + warm start, target_kl 0.02",
     "warm_n128": "TRPOPlus + warm start, n_steps 128",
     "warm_scripted25": "TRPOPlus + warm start, 25 % scripted starts",
+    "warm_scripted50": "TRPOPlus + warm start, 50 % scripted starts",
+    "plain_scripted25": "TRPOPlus plain, 25 % scripted starts",
     "warm_sde": "TRPOPlus + warm start, gSDE",
 }
 AGENT_EPISODES = 20
@@ -287,12 +289,17 @@ def export_agents(out: Path, envs: list[str], folder: Path) -> None:
     manifest_path = folder / "agents.json"
     manifest: dict[str, Any] = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
     for env_id in envs:
-        candidates = []
+        candidates, without_checkpoint = [], []
         for variant in (v for v, (algo, _) in VARIANTS.items() if algo == "trpo_plus"):
             for seed, rows in complete_runs(out, env_id, variant).items():
+                if not (job_folder(out, env_id, variant, seed) / "model.zip").exists():  # checkpoints are not committed
+                    without_checkpoint.append(f"{variant} seed {seed} ({rows[-1]['eval_success']:.2f})")
+                    continue
                 candidates.append((rows[-1]["eval_success"], rows[-1]["eval_return"], variant, seed))
+        if without_checkpoint:
+            print(f"{env_id}: finished runs without a local checkpoint, not exported: {', '.join(without_checkpoint)}")
         if not candidates:
-            print(f"{env_id}: no finished TRPOPlus run")
+            print(f"{env_id}: no finished TRPOPlus run with a checkpoint")
             continue
         success, _, variant, seed = max(candidates)
         source = job_folder(out, env_id, variant, seed)
@@ -326,4 +333,6 @@ def export_agents(out: Path, envs: list[str], folder: Path) -> None:
         video = ROOT / "docs" / "videos" / f"{env_id}.mp4"
         record_video(["--env", env_id, "-f", str(folder), "--exp-id", "1", "--seed", str(AGENT_SEED), "-o", str(video)])
         manifest[env_id]["video"] = f"videos/{video.name}"
-    manifest_path.write_text(json.dumps(manifest, indent=1) + "\n")
+        partial = manifest_path.with_suffix(".json.tmp")  # after every agent, atomically
+        partial.write_text(json.dumps(manifest, indent=1) + "\n")
+        partial.replace(manifest_path)

@@ -1,0 +1,41 @@
+"""The convergence study's tables agree with each other and with the envs (benchmarks/convergence.py)."""
+
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import pytest
+
+import grasp_envs  # noqa: F401  (registers the envs)
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+convergence = pytest.importorskip("convergence")
+convergence_report = pytest.importorskip("convergence_report")
+
+
+def test_every_variant_has_a_label_and_every_env_a_target() -> None:
+    assert set(convergence_report.LABELS) == set(convergence.VARIANTS)
+    assert set(convergence.TARGETS) == set(convergence.BUDGETS)
+    assert set(convergence.STUDY_VARIANTS) <= set(convergence.VARIANTS)
+
+
+@pytest.mark.parametrize("variant", sorted(convergence.TRAIN_ENV_KWARGS))
+def test_training_env_kwargs_are_accepted_by_the_env(variant: str) -> None:
+    assert variant in convergence.VARIANTS
+    env = gym.make("Grasper3D-v4", **convergence.TRAIN_ENV_KWARGS[variant])
+    env.reset(seed=0)
+    env.close()
+
+
+def test_export_skips_a_finished_run_without_its_checkpoint(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    env_id = "Reacher2D-v1"
+    folder = convergence.job_folder(tmp_path / "out", env_id, "warm", 3)
+    folder.mkdir(parents=True)
+    budget = convergence.BUDGETS[env_id]
+    (folder / "progress.csv").write_text(f"timesteps,eval_success,eval_return\n{budget},0.9,10.0\n")
+    agents = tmp_path / "agents"
+    convergence_report.export_agents(tmp_path / "out", [env_id], agents)
+    printed = capsys.readouterr().out
+    assert "warm seed 3 (0.90)" in printed
+    assert "no finished TRPOPlus run with a checkpoint" in printed
+    assert not agents.exists()
