@@ -142,15 +142,15 @@ def diagnostics_table(runs: dict[str, dict[int, list[dict[str, float]]]]) -> lis
     return lines
 
 
-def rliable_section(all_runs: dict[str, dict[str, dict[int, list[dict[str, float]]]]]) -> list[str]:
+def rliable_section(all_runs: dict[str, dict[str, dict[int, list[dict[str, float]]]]], min_seeds: int = 5) -> list[str]:
     """IQM with stratified-bootstrap 95 % CIs and probability of improvement over the envs every variant finished."""
     from rliable import library as rly
     from rliable import metrics
 
     variants = STUDY_VARIANTS  # the extra diagnosis variants ran on one env only
-    envs = [env for env in all_runs if min(len(all_runs[env].get(v, {})) for v in variants) >= 5]  # finished envs only
+    envs = [env for env in all_runs if min(len(all_runs[env].get(v, {})) for v in variants) >= min_seeds]  # finished
     if not envs:
-        return ["No env has 5 finished seeds of every variant yet."]
+        return [f"No env has {min_seeds} finished seeds of every variant yet."]
     n_seeds = min(len(all_runs[env][v]) for env in envs for v in variants)
 
     def scores(variant: str, kind: str) -> np.ndarray:
@@ -233,6 +233,9 @@ def write_report(out: Path, docs: Path) -> None:
             "",
         ]
     body += ["### Aggregate (rliable)", "", *rliable_section(all_runs), ""]
+    for env_id, runs in all_runs.items():  # the envs with 10 seeds of every study variant, on their own
+        if min(len(runs.get(v, {})) for v in STUDY_VARIANTS) >= 10:
+            body += [f"#### {env_id}, 10 seeds", "", *rliable_section({env_id: runs}, min_seeds=10), ""]
     body += agents_section(ROOT / "trained_agents" / "agents.json")
     text = docs.read_text()
     if BEGIN not in text or END not in text:
