@@ -63,6 +63,8 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "both": ("trpo_plus", {"replay_memory": 3, "cg_warm_start": True}),
     "trpo": ("trpo", {}),
     "ppo": ("ppo", {}),
+    # sb3-contrib TRPO with its CG started at 0 like TRPOPlus (benchmarks/trpo_divergence.py): same algorithm
+    "trpo_cg0": ("trpo", {}),
     # why does the combination hurt? (docs/results.md): CG run closer to convergence, or cut shorter
     "replay_cg25": ("trpo_plus", {"replay_memory": 3, "cg_warm_start": False, "cg_max_steps": 25}),
     "both_cg5": ("trpo_plus", {"replay_memory": 3, "cg_warm_start": True, "cg_max_steps": 5}),
@@ -74,6 +76,7 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # Grasper3D-v4: half of the training episodes, and the warm start's share of that result (plain, 25 %)
     "warm_scripted50": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True}),
     "plain_scripted25": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": False}),
+    "ppo_scripted25": ("ppo", {}),  # the baseline that led on Reacher2D-v1, with the same training aid
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (
@@ -92,7 +95,9 @@ TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
     "warm_scripted25": {"scripted_start_prob": 0.25},
     "warm_scripted50": {"scripted_start_prob": 0.5},
     "plain_scripted25": {"scripted_start_prob": 0.25},
+    "ppo_scripted25": {"scripted_start_prob": 0.25},
 }
+ZERO_CG_START = {"trpo_cg0"}  # variants whose sb3-contrib TRPO starts its conjugate gradient at 0
 STUDY_VARIANTS = ["plain", "replay", "warm", "both", "trpo", "ppo"]  # the default set of `run`
 CHUNKS = 25
 EVAL_EPISODES = 20
@@ -156,6 +161,10 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
     from sb3_trpo_plus.zoo import algorithms
 
     th.set_num_threads(1)
+    if variant in ZERO_CG_START:
+        from trpo_divergence import use_zero_start_in_sb3_contrib_trpo
+
+        use_zero_start_in_sb3_contrib_trpo()
     folder = job_folder(out, env_id, variant, seed)
     folder.mkdir(parents=True, exist_ok=True)
     rows = read_progress(folder)

@@ -24,6 +24,7 @@ LABELS = {
     "both": "TRPOPlus + both",
     "trpo": "sb3-contrib TRPO",
     "ppo": "SB3 PPO",
+    "trpo_cg0": "sb3-contrib TRPO, CG started at 0",
     "replay_cg25": "TRPOPlus + replay, 25 CG iterations",
     "both_cg5": "TRPOPlus + both, 5 CG iterations",
     "warm_kl02": "TRPOPlus + warm start, target_kl 0.02",
@@ -31,10 +32,15 @@ LABELS = {
     "warm_scripted25": "TRPOPlus + warm start, 25 % scripted starts",
     "warm_scripted50": "TRPOPlus + warm start, 50 % scripted starts",
     "plain_scripted25": "TRPOPlus plain, 25 % scripted starts",
+    "ppo_scripted25": "SB3 PPO, 25 % scripted starts",
     "warm_sde": "TRPOPlus + warm start, gSDE",
 }
 # why does the combination hurt? each diagnosis variant against the variant it changes (docs/results.md)
-DIAGNOSIS_PAIRS = [("both_cg5", "both"), ("replay", "replay_cg25"), ("both_cg5", "replay"), ("both_cg5", "warm")]
+# and is plain TRPOPlus better than sb3-contrib TRPO, or than the same algorithm with another random stream?
+DIAGNOSIS_PAIRS = [
+    ("both_cg5", "both"), ("replay", "replay_cg25"), ("both_cg5", "replay"), ("both_cg5", "warm"),
+    ("plain", "trpo_cg0"), ("trpo_cg0", "trpo"),
+]  # fmt: skip
 AGENT_EPISODES = 20
 BOOTSTRAP_SEED = 0
 AGENT_SEED = 20_000  # held out from training (seeds < 100,000 + n_envs) and from the study's evaluations (10,000)

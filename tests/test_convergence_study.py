@@ -39,3 +39,24 @@ def test_export_skips_a_finished_run_without_its_checkpoint(tmp_path: Path, caps
     assert "warm seed 3 (0.90)" in printed
     assert "no finished TRPOPlus run with a checkpoint" in printed
     assert not agents.exists()
+
+
+def test_zero_start_solver_starts_at_zero_and_draws_nothing() -> None:
+    import torch as th
+    from trpo_divergence import zero_start_solver
+
+    matrix = th.tensor([[4.0, 1.0], [1.0, 3.0]])
+    b = th.tensor([1.0, 2.0])
+    th.manual_seed(0)
+    solution = zero_start_solver(lambda v: matrix @ v, b, max_iter=1)
+    # one CG iteration from 0 is the steepest-descent step (b·b / b·Ab) b, hand-computed: 5 / 20 * b
+    th.testing.assert_close(solution, th.tensor([0.25, 0.5]))
+    th.manual_seed(0)
+    expected = th.randn(1)
+    th.manual_seed(0)
+    zero_start_solver(lambda v: matrix @ v, b, max_iter=2)
+    assert th.equal(th.randn(1), expected), "the solver must not draw from torch's global generator"
+
+
+def test_zero_cg_start_variants_are_sb3_contrib_trpo() -> None:
+    assert convergence.ZERO_CG_START and all(convergence.VARIANTS[v][0] == "trpo" for v in convergence.ZERO_CG_START)

@@ -4,15 +4,19 @@ Both models start from the same seed, so they build the same weights, collect th
 (same env seeds, same torch draws for the actions) and run one ``train()`` on it.
 """
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import sb3_contrib.trpo.trpo as sb3_contrib_trpo
-import torch as th
 from sb3_contrib import TRPO
-from sb3_contrib.common.utils import conjugate_gradient_solver
 from stable_baselines3.common.env_util import make_vec_env
 
 from sb3_trpo_plus import TRPOPlus
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from trpo_divergence import zero_start_solver  # benchmarks/trpo_divergence.py: sb3-contrib's CG started at 0
 
 KWARGS = dict(n_steps=128, batch_size=64, n_critic_updates=3, policy_kwargs=dict(net_arch=[32, 32]), seed=3)
 
@@ -28,19 +32,9 @@ def _train_once(cls, env_id: str) -> tuple[dict[str, np.ndarray], dict[str, np.n
     return initial, _flat(model), model
 
 
-def _zero_start_solver(matrix_vector_dot_fn, b, max_iter=10, residual_tol=1e-10):
-    """sb3-contrib's solver with its only difference from ours removed: start at 0, not 1e-4 * randn."""
-    randn_like = th.randn_like
-    th.randn_like = th.zeros_like  # type: ignore[assignment]
-    try:
-        return conjugate_gradient_solver(matrix_vector_dot_fn, b, max_iter=max_iter, residual_tol=residual_tol)
-    finally:
-        th.randn_like = randn_like  # type: ignore[assignment]
-
-
 @pytest.mark.parametrize("env_id", ["Pendulum-v1", "CartPole-v1", "Reacher3D-v0"])
 def test_update_matches_sb3_contrib_trpo_exactly_with_the_same_cg_start(env_id: str, monkeypatch) -> None:
-    monkeypatch.setattr(sb3_contrib_trpo, "conjugate_gradient_solver", _zero_start_solver)
+    monkeypatch.setattr(sb3_contrib_trpo, "conjugate_gradient_solver", zero_start_solver)
     initial, trpo, trpo_model = _train_once(TRPO, env_id)
     initial_plus, plus, plus_model = _train_once(TRPOPlus, env_id)
     np.testing.assert_array_equal(trpo_model.rollout_buffer.observations, plus_model.rollout_buffer.observations)

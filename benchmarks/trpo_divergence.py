@@ -1,0 +1,104 @@
+"""How fast do sb3-contrib's TRPO and plain TRPOPlus drift apart when they start from the same seed?
+
+    python benchmarks/trpo_divergence.py --env Reacher2D-v1 --seeds 5 6 7 --updates 60
+
+Both models are built with the zoo settings of the env (zoo_hyperparams/trpo.yml and trpo_plus.yml, the
+same values) and the same seed, so they start with the same weights and collect the same first rollout.
+sb3-contrib's conjugate gradient starts at 1e-4 * randn, a draw from torch's global generator that
+TRPOPlus does not make; here it starts at 0 (``zero_start_solver``), which removes the algorithms' only
+difference except floating-point rounding (analytic Fisher products against double backpropagation).
+The script prints the relative distance ||θ_TRPO - θ_TRPOPlus|| / ||θ_TRPO|| of the policy parameters
+after each update. The convergence study's variant ``trpo_cg0`` trains with the same solver.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import torch as th
+
+
+def zero_start_solver(
+    matrix_vector_dot_fn: Callable[[th.Tensor], th.Tensor], b: th.Tensor, max_iter: int = 10, residual_tol: float = 1e-10
+) -> th.Tensor:
+    """sb3-contrib's conjugate gradient solver started at 0 instead of 1e-4 * randn (no draw from torch's generator)."""
+    from sb3_contrib.common.utils import conjugate_gradient_solver
+
+    randn_like = th.randn_like
+    th.randn_like = th.zeros_like  # type: ignore[assignment]
+    try:
+        return conjugate_gradient_solver(matrix_vector_dot_fn, b, max_iter=max_iter, residual_tol=residual_tol)
+    finally:
+        th.randn_like = randn_like  # type: ignore[assignment]
+
+
+def use_zero_start_in_sb3_contrib_trpo() -> None:
+    """Make sb3-contrib's TRPO (in this process) start its conjugate gradient at 0."""
+    import sb3_contrib.trpo.trpo as sb3_contrib_trpo
+
+    sb3_contrib_trpo.conjugate_gradient_solver = zero_start_solver  # type: ignore[assignment]
+
+
+def parameter_trajectory(algo: str, env_id: str, seed: int, updates: int) -> list[np.ndarray]:
+    """Flat policy parameters before the first update and after each update (zoo settings of ``algo``)."""
+    from convergence import ROOT  # benchmarks/ is on sys.path when this file runs as a script
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    import grasp_envs  # noqa: F401
+    from sb3_trpo_plus.zoo import algorithms, load_hyperparameters
+
+    params = dict(load_hyperparameters(ROOT / "zoo_hyperparams" / f"{algo}.yml", algo, [env_id])[env_id])
+    if algo == "trpo_plus":
+        params.update(replay_memory=0, cg_warm_start=False)  # plain TRPOPlus
+    n_envs, normalize, policy = int(params.pop("n_envs", 1)), params.pop("normalize", False), params.pop("policy")
+    for key in ("n_timesteps", "callback", "monitor_kwargs", "normalize_kwargs", "env_wrapper", "vec_env_wrapper"):
+        params.pop(key, None)
+    venv = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=params.pop("env_kwargs", None))
+    env = VecNormalize(venv, gamma=params.get("gamma", 0.99)) if normalize else venv
+    model = algorithms()[algo](policy, env, seed=seed, device="cpu", **params)
+    trajectory: list[np.ndarray] = []
+
+    class Record(BaseCallback):
+        def _on_rollout_start(self) -> None:
+            vector = th.nn.utils.parameters_to_vector(self.model.policy.parameters())
+            trajectory.append(vector.detach().double().numpy().copy())
+
+        def _on_step(self) -> bool:
+            return True
+
+    model.learn(model.n_steps * n_envs * updates, callback=Record())
+    env.close()
+    return trajectory
+
+
+def divergence(env_id: str, seed: int, updates: int) -> list[float]:
+    """Relative parameter distance between sb3-contrib TRPO (CG started at 0) and plain TRPOPlus, per update."""
+    use_zero_start_in_sb3_contrib_trpo()
+    th.set_num_threads(1)
+    trpo = parameter_trajectory("trpo", env_id, seed, updates)
+    plus = parameter_trajectory("trpo_plus", env_id, seed, updates)
+    return [float(np.linalg.norm(a - b) / np.linalg.norm(a)) for a, b in zip(trpo, plus, strict=True)]
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--env", default="Reacher2D-v1")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[5])
+    parser.add_argument("--updates", type=int, default=60)
+    args = parser.parse_args(argv)
+    curves: dict[int, Any] = {seed: divergence(args.env, seed, args.updates) for seed in args.seeds}
+    shown = [u for u in (1, 2, 4, 6, 8, 10, 12, 15, 20, 30, 40, 50, 60, 80, 100) if u < args.updates]
+    print(f"{args.env}: ||θ_TRPO - θ_TRPOPlus|| / ||θ_TRPO|| after k updates")
+    print("| seed | " + " | ".join(f"k={u}" for u in shown) + " |")
+    print("|---|" + "---|" * len(shown))
+    for seed, curve in curves.items():
+        print(f"| {seed} | " + " | ".join(f"{curve[u]:.1e}" for u in shown) + " |")
+
+
+if __name__ == "__main__":
+    main()
