@@ -47,9 +47,9 @@ AGENT_SEED = 20_000  # held out from training (seeds < 100,000 + n_envs) and fro
 
 
 def complete_runs(out: Path, env_id: str, variant: str) -> dict[int, list[dict[str, float]]]:
-    """{seed: rows} of the runs of (env, variant) that reached the env's budget."""
+    """{seed: rows} of the runs of (env, variant) that reached the env's budget, in the order of the seeds."""
     runs = {}
-    for folder in sorted((out / env_id / variant).glob("seed*")):
+    for folder in sorted((out / env_id / variant).glob("seed*"), key=lambda f: int(f.name[4:])):  # seed2 < seed10
         rows = read_progress(folder)
         if rows and rows[-1]["timesteps"] >= BUDGETS[env_id]:
             runs[int(folder.name[4:])] = rows

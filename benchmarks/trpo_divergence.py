@@ -42,10 +42,13 @@ def use_zero_start_in_sb3_contrib_trpo() -> None:
     sb3_contrib_trpo.conjugate_gradient_solver = zero_start_solver  # type: ignore[assignment]
 
 
-def parameter_trajectory(algo: str, env_id: str, seed: int, updates: int) -> list[np.ndarray]:
-    """Flat policy parameters before the first update and after each update (zoo settings of ``algo``)."""
+def _flat_parameters(model: Any) -> np.ndarray:
+    return th.nn.utils.parameters_to_vector(model.policy.parameters()).detach().double().numpy().copy()
+
+
+def _model(algo: str, env_id: str, seed: int, env: Any = None) -> Any:
+    """A model with the zoo settings of ``algo`` on ``env_id`` (TRPOPlus: plain), on ``env`` or a new seeded env."""
     from convergence import ROOT  # benchmarks/ is on sys.path when this file runs as a script
-    from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -58,22 +61,70 @@ def parameter_trajectory(algo: str, env_id: str, seed: int, updates: int) -> lis
     n_envs, normalize, policy = int(params.pop("n_envs", 1)), params.pop("normalize", False), params.pop("policy")
     for key in ("n_timesteps", "callback", "monitor_kwargs", "normalize_kwargs", "env_wrapper", "vec_env_wrapper"):
         params.pop(key, None)
-    venv = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=params.pop("env_kwargs", None))
-    env = VecNormalize(venv, gamma=params.get("gamma", 0.99)) if normalize else venv
-    model = algorithms()[algo](policy, env, seed=seed, device="cpu", **params)
+    env_kwargs = params.pop("env_kwargs", None)
+    if env is None:
+        env = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs)
+        env = VecNormalize(env, gamma=params.get("gamma", 0.99)) if normalize else env
+    return algorithms()[algo](policy, env, seed=seed, device="cpu", **params)
+
+
+def parameter_trajectory(algo: str, env_id: str, seed: int, updates: int) -> list[np.ndarray]:
+    """Flat policy parameters before the first update and after each update (zoo settings of ``algo``)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    model = _model(algo, env_id, seed)
     trajectory: list[np.ndarray] = []
 
     class Record(BaseCallback):
         def _on_rollout_start(self) -> None:
-            vector = th.nn.utils.parameters_to_vector(self.model.policy.parameters())
-            trajectory.append(vector.detach().double().numpy().copy())
+            trajectory.append(_flat_parameters(self.model))
 
         def _on_step(self) -> bool:
             return True
 
-    model.learn(model.n_steps * n_envs * updates, callback=Record())
-    env.close()
+    model.learn(model.n_steps * model.n_envs * updates, callback=Record())
+    model.env.close()
     return trajectory
+
+
+def update_agreement(env_id: str, seed: int, updates: int) -> list[float]:
+    """Along a plain TRPOPlus run, sb3-contrib's ``train()`` on the same input: ||Δθ_TRPO - Δθ_TRPOPlus|| / ||Δθ_TRPOPlus||.
+
+    Before each TRPOPlus update, a TRPO model gets TRPOPlus' weights, critic optimiser state, rollout buffer,
+    learning-rate progress and numpy / torch generator states, and makes its update; TRPOPlus then makes its
+    own from the same state. A difference between the two algorithms anywhere on the trajectory (e.g. after a
+    rejected line search, or once the policy's std has moved) shows as a ratio far above float rounding.
+    """
+    import copy
+
+    from stable_baselines3.common.logger import Logger
+
+    use_zero_start_in_sb3_contrib_trpo()
+    th.set_num_threads(1)
+    plus = _model("trpo_plus", env_id, seed)
+    reference = _model("trpo", env_id, seed, env=plus.env)
+    reference.set_logger(Logger(folder=None, output_formats=[]))
+    ratios: list[float] = []
+    plus_train = plus.train
+
+    def compared_train() -> None:
+        before = _flat_parameters(plus)
+        numpy_state, torch_state = np.random.get_state(), th.get_rng_state()
+        reference.policy.load_state_dict(plus.policy.state_dict())
+        reference.policy.optimizer.load_state_dict(copy.deepcopy(plus.policy.optimizer.state_dict()))
+        reference.rollout_buffer = copy.deepcopy(plus.rollout_buffer)
+        reference._current_progress_remaining = plus._current_progress_remaining
+        reference.train()
+        np.random.set_state(numpy_state)
+        th.set_rng_state(torch_state)
+        plus_train()
+        step_plus, step_reference = _flat_parameters(plus) - before, _flat_parameters(reference) - before
+        ratios.append(float(np.linalg.norm(step_reference - step_plus) / max(np.linalg.norm(step_plus), 1e-12)))
+
+    plus.train = compared_train  # type: ignore[method-assign]
+    plus.learn(plus.n_steps * plus.n_envs * updates)
+    plus.env.close()
+    return ratios
 
 
 def divergence(env_id: str, seed: int, updates: int) -> list[float]:
@@ -91,6 +142,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[5])
     parser.add_argument("--updates", type=int, default=60)
     args = parser.parse_args(argv)
+    agreement = {seed: update_agreement(args.env, seed, args.updates) for seed in args.seeds}
+    print(f"{args.env}: the same update from the same state, ||Δθ_TRPO - Δθ_TRPOPlus|| / ||Δθ_TRPOPlus||")
+    half = args.updates // 2
+    print(f"| seed | median, updates 1-{half} | median, updates {half + 1}-{args.updates} | max | update of the max |")
+    print("|---|---|---|---|---|")
+    for seed, ratios in agreement.items():
+        first, second = np.median(ratios[:half]), np.median(ratios[half:])
+        print(f"| {seed} | {first:.1e} | {second:.1e} | {max(ratios):.1e} | {int(np.argmax(ratios)) + 1} |")
     curves: dict[int, Any] = {seed: divergence(args.env, seed, args.updates) for seed in args.seeds}
     shown = [u for u in (1, 2, 4, 6, 8, 10, 12, 15, 20, 30, 40, 50, 60, 80, 100) if u < args.updates]
     print(f"{args.env}: ||θ_TRPO - θ_TRPOPlus|| / ||θ_TRPO|| after k updates")

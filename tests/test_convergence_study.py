@@ -60,3 +60,14 @@ def test_zero_start_solver_starts_at_zero_and_draws_nothing() -> None:
 
 def test_zero_cg_start_variants_are_sb3_contrib_trpo() -> None:
     assert convergence.ZERO_CG_START and all(convergence.VARIANTS[v][0] == "trpo" for v in convergence.ZERO_CG_START)
+
+
+def test_complete_runs_are_in_the_order_of_the_seeds(tmp_path: Path) -> None:
+    # the 10-seed tables take the first seeds of each variant: seed10 must not come before seed2
+    budget = convergence.BUDGETS["Reacher2D-v1"]
+    for seed in (10, 2, 1):
+        folder = convergence.job_folder(tmp_path, "Reacher2D-v1", "plain", seed)
+        folder.mkdir(parents=True)
+        (folder / "progress.csv").write_text(f"timesteps,eval_success\n{budget},0.5\n")
+    (convergence.job_folder(tmp_path, "Reacher2D-v1", "plain", 3)).mkdir()  # unfinished: no CSV
+    assert list(convergence_report.complete_runs(tmp_path, "Reacher2D-v1", "plain")) == [1, 2, 10]
