@@ -1,6 +1,7 @@
 """How fast do sb3-contrib's TRPO and plain TRPOPlus drift apart when they start from the same seed?
 
-    python benchmarks/trpo_divergence.py --env Reacher2D-v1 --seeds 5 6 7 --updates 60
+    python benchmarks/trpo_divergence.py --env Reacher2D-v1 --seeds 5 6 7 --updates 147
+    python benchmarks/trpo_divergence.py --env Reacher2D-v1 --study   # P(X > Y) of the study's runs
 
 Both models are built with the zoo settings of the env (zoo_hyperparams/trpo.yml and trpo_plus.yml, the
 same values) and the same seed, so they start with the same weights and collect the same first rollout.
@@ -136,12 +137,43 @@ def divergence(env_id: str, seed: int, updates: int) -> list[float]:
     return [float(np.linalg.norm(a - b) / np.linalg.norm(a)) for a, b in zip(trpo, plus, strict=True)]
 
 
+def study_pairs(env_id: str, pairs: Sequence[tuple[str, str]]) -> list[str]:
+    """P(X > Y) on the success area over every seed both variants finished in the convergence study (rliable)."""
+    from convergence import OUT
+    from convergence_report import LABELS, complete_runs
+    from rliable import library as rly
+    from rliable import metrics
+
+    lines = [f"{env_id}: P(X > Y), success area, every seed both finished", "| X > Y | seeds | estimate [95 % CI] |"]
+    lines.append("|---|---|---|")
+    for a, b in pairs:
+        runs_a, runs_b = complete_runs(OUT, env_id, a), complete_runs(OUT, env_id, b)
+        seeds = sorted(set(runs_a) & set(runs_b))
+        if not seeds:
+            lines.append(f"| {LABELS[a]} > {LABELS[b]} | 0 | no common finished seed |")
+            continue
+        area_a = np.array([[np.mean([row["eval_success"] for row in runs_a[s]])] for s in seeds])
+        area_b = np.array([[np.mean([row["eval_success"] for row in runs_b[s]])] for s in seeds])
+        np.random.seed(0)  # rliable's bootstrap draws from numpy's global generator: a fixed, repeatable table
+        point, interval = rly.get_interval_estimates(
+            {"pair": (area_a, area_b)}, metrics.probability_of_improvement, reps=2000, random_state=np.random.RandomState(0)
+        )
+        low, high = float(np.squeeze(interval["pair"][0])), float(np.squeeze(interval["pair"][1]))
+        estimate = float(np.squeeze(point["pair"]))
+        lines.append(f"| {LABELS[a]} > {LABELS[b]} | {len(seeds)} | {estimate:.2f} [{low:.2f}, {high:.2f}] |")
+    return lines
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="Reacher2D-v1")
     parser.add_argument("--seeds", type=int, nargs="+", default=[5])
     parser.add_argument("--updates", type=int, default=60)
+    parser.add_argument("--study", action="store_true", help="only the study's P(X > Y) tables (no training)")
     args = parser.parse_args(argv)
+    if args.study:
+        print("\n".join(study_pairs(args.env, [("plain", "trpo_cg0"), ("trpo_cg0", "trpo"), ("plain", "trpo")])))
+        return
     agreement = {seed: update_agreement(args.env, seed, args.updates) for seed in args.seeds}
     print(f"{args.env}: the same update from the same state, ||Δθ_TRPO - Δθ_TRPOPlus|| / ||Δθ_TRPOPlus||")
     half = args.updates // 2
