@@ -33,6 +33,7 @@ LABELS = {
     "warm_scripted50": "TRPOPlus + warm start, 50 % scripted starts",
     "plain_scripted25": "TRPOPlus plain, 25 % scripted starts",
     "ppo_scripted25": "SB3 PPO, 25 % scripted starts",
+    "warm_scripted25_kl03": "TRPOPlus + warm start, 25 % scripted starts, target_kl 0.03",
     "warm_sde": "TRPOPlus + warm start, gSDE",
 }
 # why does the combination hurt? each diagnosis variant against the variant it changes (docs/results.md)
