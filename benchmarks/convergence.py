@@ -147,6 +147,17 @@ def _hyperparameters(algo: str, env_id: str, overrides: dict[str, Any]) -> dict[
     return params
 
 
+def model_settings(algo: str, env_id: str, overrides: dict[str, Any]) -> tuple[dict[str, Any], int, bool, str, Any]:
+    """(constructor kwargs, n_envs, normalize, policy, env_kwargs) from the zoo settings of ``algo`` on ``env_id``."""
+    params = _hyperparameters(algo, env_id, overrides)
+    n_envs, normalize = int(params.pop("n_envs", 1)), bool(params.pop("normalize", False))
+    policy = params.pop("policy")
+    for key in ("n_timesteps", "callback", "monitor_kwargs", "normalize_kwargs", "env_wrapper", "vec_env_wrapper"):
+        params.pop(key, None)
+    env_kwargs = params.pop("env_kwargs", None)  # the YAML's env_kwargs, as rl-zoo3 applies them
+    return params, n_envs, normalize, policy, env_kwargs
+
+
 def _atomic_replace(write: Any, path: Path) -> None:
     temporary = path.with_name(f"{path.stem}.tmp{path.suffix}")  # SB3 keeps a name that ends in .zip
     write(temporary)
@@ -179,14 +190,9 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
         (folder / "progress.csv").unlink()
         rows, done = [], 0
     algo, overrides = VARIANTS[variant]
-    params = _hyperparameters(algo, env_id, overrides)
-    n_envs, normalize = int(params.pop("n_envs", 1)), params.pop("normalize", False)
-    policy = params.pop("policy")
-    for key in ("n_timesteps", "callback", "monitor_kwargs", "normalize_kwargs", "env_wrapper", "vec_env_wrapper"):
-        params.pop(key, None)
+    params, n_envs, normalize, policy, env_kwargs = model_settings(algo, env_id, overrides)
     algo_class = algorithms()[algo]
     monitor = {"info_keywords": ("is_success",)}
-    env_kwargs = params.pop("env_kwargs", None)  # the YAML's env_kwargs, as rl-zoo3 applies them
     train_env_kwargs = {**(env_kwargs or {}), **TRAIN_ENV_KWARGS.get(variant, {})}
     venv = make_vec_env(
         env_id, n_envs=n_envs, seed=seed + 100_000 * len(rows), env_kwargs=train_env_kwargs, monitor_kwargs=monitor

@@ -49,20 +49,15 @@ def _flat_parameters(model: Any) -> np.ndarray:
 
 def _model(algo: str, env_id: str, seed: int, env: Any = None) -> Any:
     """A model with the zoo settings of ``algo`` on ``env_id`` (TRPOPlus: plain), on ``env`` or a new seeded env."""
-    from convergence import ROOT  # benchmarks/ is on sys.path when this file runs as a script
+    from convergence import VARIANTS, model_settings  # benchmarks/ is on sys.path when this file runs as a script
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
     import grasp_envs  # noqa: F401
-    from sb3_trpo_plus.zoo import algorithms, load_hyperparameters
+    from sb3_trpo_plus.zoo import algorithms
 
-    params = dict(load_hyperparameters(ROOT / "zoo_hyperparams" / f"{algo}.yml", algo, [env_id])[env_id])
-    if algo == "trpo_plus":
-        params.update(replay_memory=0, cg_warm_start=False)  # plain TRPOPlus
-    n_envs, normalize, policy = int(params.pop("n_envs", 1)), params.pop("normalize", False), params.pop("policy")
-    for key in ("n_timesteps", "callback", "monitor_kwargs", "normalize_kwargs", "env_wrapper", "vec_env_wrapper"):
-        params.pop(key, None)
-    env_kwargs = params.pop("env_kwargs", None)
+    variant = "plain" if algo == "trpo_plus" else algo  # the study's plain TRPOPlus / sb3-contrib TRPO
+    params, n_envs, normalize, policy, env_kwargs = model_settings(algo, env_id, VARIANTS[variant][1])
     if env is None:
         env = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs)
         env = VecNormalize(env, gamma=params.get("gamma", 0.99)) if normalize else env
