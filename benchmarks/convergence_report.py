@@ -152,6 +152,22 @@ def diagnostics_table(runs: dict[str, dict[int, list[dict[str, float]]]]) -> lis
     return lines
 
 
+def success_score(rows: list[dict[str, float]], kind: str) -> float:
+    """A run's evaluation success: at the end of the budget (``final``) or its mean over the run (``area``)."""
+    successes = [row["eval_success"] for row in rows]
+    return successes[-1] if kind == "final" else float(np.mean(successes))
+
+
+def interval_estimates(score_dict: dict[str, Any], statistic: Any) -> Any:
+    """rliable's point estimates and 95 % stratified-bootstrap intervals (2,000 resamples), repeatable."""
+    from rliable import library as rly
+
+    # rliable's StratifiedBootstrap draws from numpy's global generator (and arch's from random_state):
+    # seed both, so that regenerating the report gives the same intervals
+    np.random.seed(BOOTSTRAP_SEED)
+    return rly.get_interval_estimates(score_dict, statistic, reps=2000, random_state=np.random.RandomState(BOOTSTRAP_SEED))
+
+
 def rliable_section(
     all_runs: dict[str, dict[str, dict[int, list[dict[str, float]]]]],
     min_seeds: int = 5,
@@ -162,7 +178,6 @@ def rliable_section(
     ``extra_pairs`` (e.g. a diagnosis variant against the study variant it modifies) join the probability-of-
     improvement table where both have ``min_seeds`` finished seeds on every env of the section.
     """
-    from rliable import library as rly
     from rliable import metrics
 
     variants = STUDY_VARIANTS  # the extra diagnosis variants ran on one env only
@@ -175,8 +190,7 @@ def rliable_section(
         matrix = np.zeros((n_seeds, len(envs)))
         for j, env in enumerate(envs):
             for i, rows in enumerate(list(all_runs[env][variant].values())[:n_seeds]):
-                successes = [row["eval_success"] for row in rows]
-                matrix[i, j] = successes[-1] if kind == "final" else float(np.mean(successes))
+                matrix[i, j] = success_score(rows, kind)
         return matrix
 
     lines = [
@@ -187,12 +201,6 @@ def rliable_section(
         "| variant | IQM final success [95 % CI] | IQM success area [95 % CI] |",
         "|---|---|---|",
     ]
-
-    def interval_estimates(score_dict: dict[str, Any], statistic: Any) -> Any:
-        # rliable's StratifiedBootstrap draws from numpy's global generator (and arch's from random_state):
-        # seed both, so that regenerating the report gives the same intervals
-        np.random.seed(BOOTSTRAP_SEED)
-        return rly.get_interval_estimates(score_dict, statistic, reps=2000, random_state=np.random.RandomState(BOOTSTRAP_SEED))
 
     estimates = {}
     for kind in ("final", "area"):

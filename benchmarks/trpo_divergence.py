@@ -135,8 +135,7 @@ def divergence(env_id: str, seed: int, updates: int) -> list[float]:
 def study_pairs(env_id: str, pairs: Sequence[tuple[str, str]]) -> list[str]:
     """P(X > Y) on the success area over every seed both variants finished in the convergence study (rliable)."""
     from convergence import OUT
-    from convergence_report import LABELS, complete_runs
-    from rliable import library as rly
+    from convergence_report import LABELS, complete_runs, interval_estimates, success_score
     from rliable import metrics
 
     lines = [f"{env_id}: P(X > Y), success area, every seed both finished", "| X > Y | seeds | estimate [95 % CI] |"]
@@ -147,12 +146,9 @@ def study_pairs(env_id: str, pairs: Sequence[tuple[str, str]]) -> list[str]:
         if not seeds:
             lines.append(f"| {LABELS[a]} > {LABELS[b]} | 0 | no common finished seed |")
             continue
-        area_a = np.array([[np.mean([row["eval_success"] for row in runs_a[s]])] for s in seeds])
-        area_b = np.array([[np.mean([row["eval_success"] for row in runs_b[s]])] for s in seeds])
-        np.random.seed(0)  # rliable's bootstrap draws from numpy's global generator: a fixed, repeatable table
-        point, interval = rly.get_interval_estimates(
-            {"pair": (area_a, area_b)}, metrics.probability_of_improvement, reps=2000, random_state=np.random.RandomState(0)
-        )
+        area_a = np.array([[success_score(runs_a[s], "area")] for s in seeds])
+        area_b = np.array([[success_score(runs_b[s], "area")] for s in seeds])
+        point, interval = interval_estimates({"pair": (area_a, area_b)}, metrics.probability_of_improvement)
         low, high = float(np.squeeze(interval["pair"][0])), float(np.squeeze(interval["pair"][1]))
         estimate = float(np.squeeze(point["pair"]))
         lines.append(f"| {LABELS[a]} > {LABELS[b]} | {len(seeds)} | {estimate:.2f} [{low:.2f}, {high:.2f}] |")
