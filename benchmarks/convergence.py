@@ -79,6 +79,12 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "ppo_scripted25": ("ppo", {}),  # the baseline that led on Reacher2D-v1, with the same training aid
     # PPO with scripted starts learned the lift faster than TRPOPlus: a trust region three times as large
     "warm_scripted25_kl03": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "target_kl": 0.03}),
+    # ... twice the updates (5,000 samples each), or a smaller initial action std (0.61, log_std_init -0.5)
+    "warm_scripted25_n500": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "n_steps": 500}),
+    "warm_scripted25_std06": (
+        "trpo_plus",
+        {"replay_memory": 0, "cg_warm_start": True, "policy_kwargs": {"log_std_init": -0.5}},
+    ),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (
@@ -99,6 +105,8 @@ TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
     "plain_scripted25": {"scripted_start_prob": 0.25},
     "ppo_scripted25": {"scripted_start_prob": 0.25},
     "warm_scripted25_kl03": {"scripted_start_prob": 0.25},
+    "warm_scripted25_n500": {"scripted_start_prob": 0.25},
+    "warm_scripted25_std06": {"scripted_start_prob": 0.25},
 }
 ZERO_CG_START = {"trpo_cg0"}  # variants whose sb3-contrib TRPO starts its conjugate gradient at 0
 STUDY_VARIANTS = ["plain", "replay", "warm", "both", "trpo", "ppo"]  # the default set of `run`

@@ -34,6 +34,8 @@ LABELS = {
     "plain_scripted25": "TRPOPlus plain, 25 % scripted starts",
     "ppo_scripted25": "SB3 PPO, 25 % scripted starts",
     "warm_scripted25_kl03": "TRPOPlus + warm start, 25 % scripted starts, target_kl 0.03",
+    "warm_scripted25_n500": "TRPOPlus + warm start, 25 % scripted starts, 5,000 samples per update",
+    "warm_scripted25_std06": "TRPOPlus + warm start, 25 % scripted starts, initial std 0.61",
     "warm_sde": "TRPOPlus + warm start, gSDE",
 }
 # why does the combination hurt? each diagnosis variant against the variant it changes (docs/results.md)

@@ -71,3 +71,26 @@ def test_complete_runs_are_in_the_order_of_the_seeds(tmp_path: Path) -> None:
         (folder / "progress.csv").write_text(f"timesteps,eval_success\n{budget},0.5\n")
     (convergence.job_folder(tmp_path, "Reacher2D-v1", "plain", 3)).mkdir()  # unfinished: no CSV
     assert list(convergence_report.complete_runs(tmp_path, "Reacher2D-v1", "plain")) == [1, 2, 10]
+
+
+def test_update_kl_is_per_state_and_matches_trpo_plus_line_search() -> None:
+    """benchmarks/update_kl.py: KL summed over action dimensions, measured on the update's own states.
+
+    TRPOPlus logs SB3's KL per action dimension, so on Reacher2D-v1 (2 actions) the measured KL of each
+    update must be twice the logged one; reading the rollout buffer after ``train()`` (which reorders its
+    arrays in place) would compare the policies on different states and fail this.
+    """
+    import numpy as np
+    import torch as th
+    import update_kl
+
+    old = th.distributions.Normal(th.tensor([[0.0, 0.0], [0.0, 0.0]]), th.tensor([[1.0, 1.0], [1.0, 1.0]]))
+    new = th.distributions.Normal(th.tensor([[1.0, 0.0], [0.0, 0.0]]), th.tensor([[1.0, 1.0], [1.0, 2.0]]))
+    # KL(p || q) = log(s_q / s_p) + (s_p^2 + (m_p - m_q)^2) / (2 s_q^2) - 1/2 per dimension, summed, averaged over states
+    # state 1: mean moved by one std, 1/2 either way; state 2: std doubled, log 2 + 1/8 - 1/2 or -log 2 + 2 - 1/2
+    assert update_kl.policy_kl(old, new) == pytest.approx((0.5 + np.log(2.0) + 0.125 - 0.5) / 2, rel=1e-6)
+    assert update_kl.policy_kl(new, old) == pytest.approx((0.5 - np.log(2.0) + 2.0 - 0.5) / 2, rel=1e-6)
+
+    result = update_kl.measure("Reacher2D-v1", "plain", steps=4096)
+    assert len(result["kl"]) == 2
+    np.testing.assert_allclose(result["kl"], 2 * np.asarray(result["logged_kl"]), rtol=1e-3)
