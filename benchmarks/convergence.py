@@ -87,6 +87,8 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     ),
     # ... the critic's Adam step size of PPO (3e-4; TRPO's default is 1e-3), the same 10 epochs of minibatches
     "warm_scripted25_vf3e4": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "learning_rate": 3e-4}),
+    # ... and PPO with one epoch over each batch instead of ten (20 Adam steps per batch instead of 200)
+    "ppo_scripted25_e1": ("ppo", {"n_epochs": 1}),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (
@@ -110,6 +112,7 @@ TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
     "warm_scripted25_n500": {"scripted_start_prob": 0.25},
     "warm_scripted25_std06": {"scripted_start_prob": 0.25},
     "warm_scripted25_vf3e4": {"scripted_start_prob": 0.25},
+    "ppo_scripted25_e1": {"scripted_start_prob": 0.25},
 }
 ZERO_CG_START = {"trpo_cg0"}  # variants whose sb3-contrib TRPO starts its conjugate gradient at 0
 STUDY_VARIANTS = ["plain", "replay", "warm", "both", "trpo", "ppo"]  # the default set of `run`

@@ -37,6 +37,7 @@ LABELS = {
     "warm_scripted25_n500": "TRPOPlus + warm start, 25 % scripted starts, 5,000 samples per update",
     "warm_scripted25_std06": "TRPOPlus + warm start, 25 % scripted starts, initial std 0.61",
     "warm_scripted25_vf3e4": "TRPOPlus + warm start, 25 % scripted starts, critic step size 3e-4",
+    "ppo_scripted25_e1": "SB3 PPO, 25 % scripted starts, 1 epoch per batch",
     "warm_sde": "TRPOPlus + warm start, gSDE",
 }
 # why does the combination hurt? each diagnosis variant against the variant it changes (docs/results.md)
