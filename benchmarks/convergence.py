@@ -172,6 +172,27 @@ def model_settings(algo: str, env_id: str, overrides: dict[str, Any]) -> tuple[d
     return params, n_envs, normalize, policy, env_kwargs
 
 
+def new_model(env_id: str, variant: str, seed: int, env: Any = None) -> Any:
+    """A new model of ``variant`` (zoo settings plus its switches), unmonitored, for the diagnostic scripts.
+
+    On ``env``, or on new training envs seeded with ``seed`` (the variant's training-env kwargs, VecNormalize
+    where the YAML asks for it). ``run_job`` builds its own: it monitors episodes and resumes checkpoints.
+    """
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    import grasp_envs  # noqa: F401
+    from sb3_trpo_plus.zoo import algorithms
+
+    algo, overrides = VARIANTS[variant]
+    params, n_envs, normalize, policy, env_kwargs = model_settings(algo, env_id, overrides)
+    if env is None:
+        train_env_kwargs = {**(env_kwargs or {}), **TRAIN_ENV_KWARGS.get(variant, {})}
+        env = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=train_env_kwargs)
+        env = VecNormalize(env, gamma=params.get("gamma", 0.99)) if normalize else env
+    return algorithms()[algo](policy, env, seed=seed, device="cpu", **params)
+
+
 def _atomic_replace(write: Any, path: Path) -> None:
     temporary = path.with_name(f"{path.stem}.tmp{path.suffix}")  # SB3 keeps a name that ends in .zip
     write(temporary)

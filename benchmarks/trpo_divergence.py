@@ -49,19 +49,10 @@ def _flat_parameters(model: Any) -> np.ndarray:
 
 def _model(algo: str, env_id: str, seed: int, env: Any = None) -> Any:
     """A model with the zoo settings of ``algo`` on ``env_id`` (TRPOPlus: plain), on ``env`` or a new seeded env."""
-    from convergence import VARIANTS, model_settings  # benchmarks/ is on sys.path when this file runs as a script
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import VecNormalize
-
-    import grasp_envs  # noqa: F401
-    from sb3_trpo_plus.zoo import algorithms
+    from convergence import new_model  # benchmarks/ is on sys.path when this file runs as a script
 
     variant = "plain" if algo == "trpo_plus" else algo  # the study's plain TRPOPlus / sb3-contrib TRPO
-    params, n_envs, normalize, policy, env_kwargs = model_settings(algo, env_id, VARIANTS[variant][1])
-    if env is None:
-        env = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs)
-        env = VecNormalize(env, gamma=params.get("gamma", 0.99)) if normalize else env
-    return algorithms()[algo](policy, env, seed=seed, device="cpu", **params)
+    return new_model(env_id, variant, seed, env)
 
 
 def parameter_trajectory(algo: str, env_id: str, seed: int, updates: int) -> list[np.ndarray]:

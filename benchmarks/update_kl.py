@@ -34,21 +34,11 @@ def policy_kl(p: th.distributions.Normal, q: th.distributions.Normal) -> float:
 
 def measure(env_id: str, variant: str, steps: int, seed: int = 0) -> dict[str, Any]:
     """Train one variant for ``steps`` and return the KL and std of each policy update."""
-    from convergence import TRAIN_ENV_KWARGS, VARIANTS, model_settings
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import VecNormalize
-
-    import grasp_envs  # noqa: F401
-    from sb3_trpo_plus.zoo import algorithms
+    from convergence import VARIANTS, new_model
 
     th.set_num_threads(1)
-    algo, overrides = VARIANTS[variant]
-    params, n_envs, normalize, policy, env_kwargs = model_settings(algo, env_id, overrides)
-    venv = make_vec_env(
-        env_id, n_envs=n_envs, seed=seed, env_kwargs={**(env_kwargs or {}), **TRAIN_ENV_KWARGS.get(variant, {})}
-    )
-    env = VecNormalize(venv, gamma=params.get("gamma", 0.99)) if normalize else venv
-    model = algorithms()[algo](policy, env, seed=seed, device="cpu", verbose=0, **params)
+    algo = VARIANTS[variant][0]
+    model = new_model(env_id, variant, seed)
     kls: list[float] = []
     stds: list[float] = []
     logged: list[float] = []  # the algorithm's own KL figure: TRPO's per-dimension KL, PPO's approx_kl
@@ -71,7 +61,7 @@ def measure(env_id: str, variant: str, steps: int, seed: int = 0) -> dict[str, A
 
     model.train = train_and_measure  # type: ignore[method-assign]
     model.learn(steps)
-    env.close()
+    model.get_env().close()
     return {
         "env": env_id,
         "variant": variant,
