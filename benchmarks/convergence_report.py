@@ -29,6 +29,12 @@ LABELS = {
     "both_cg5": "TRPOPlus + both, 5 CG iterations",
     "warm_kl02": "TRPOPlus + warm start, target_kl 0.02",
     "warm_n128": "TRPOPlus + warm start, n_steps 128",
+    "warm_std06": "TRPOPlus + warm start, initial std 0.61",
+    "warm_std037": "TRPOPlus + warm start, initial std 0.37",
+    "warm_lam098": "TRPOPlus + warm start, GAE lambda 0.98",
+    "warm_g098": "TRPOPlus + warm start, gamma 0.98",
+    "warm_lam090": "TRPOPlus + warm start, GAE lambda 0.90",
+    "warm_vf20": "TRPOPlus + warm start, 20 critic epochs",
     "warm_scripted25": "TRPOPlus + warm start, 25 % scripted starts",
     "warm_scripted50": "TRPOPlus + warm start, 50 % scripted starts",
     "plain_scripted25": "TRPOPlus plain, 25 % scripted starts",
@@ -42,9 +48,10 @@ LABELS = {
 }
 # why does the combination hurt? each diagnosis variant against the variant it changes (docs/results.md)
 # and is plain TRPOPlus better than sb3-contrib TRPO, or than the same algorithm with another random stream?
+# (session 10: the tuned discount against the zoo's, and against PPO)
 DIAGNOSIS_PAIRS = [
     ("both_cg5", "both"), ("replay", "replay_cg25"), ("both_cg5", "replay"), ("both_cg5", "warm"),
-    ("plain", "trpo_cg0"), ("trpo_cg0", "trpo"),
+    ("plain", "trpo_cg0"), ("trpo_cg0", "trpo"), ("warm_g098", "warm"), ("warm_g098", "ppo"),
 ]  # fmt: skip
 AGENT_EPISODES = 20
 BOOTSTRAP_SEED = 0
