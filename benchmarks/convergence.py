@@ -78,6 +78,7 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "warm_lam098": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "gae_lambda": 0.98}),
     "warm_g098": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "gamma": 0.98}),
     "warm_lam090": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "gae_lambda": 0.9}),
+    "ppo_g098": ("ppo", {"gamma": 0.98}),  # ... and whether the same discount helps PPO as much
     "warm_vf20": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "n_critic_updates": 20}),
     # Grasper3D-v3: a quarter of the training episodes start along the scripted grasp (Popov et al. 2017)
     "warm_scripted25": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True}),

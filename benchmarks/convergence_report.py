@@ -34,6 +34,7 @@ LABELS = {
     "warm_lam098": "TRPOPlus + warm start, GAE lambda 0.98",
     "warm_g098": "TRPOPlus + warm start, gamma 0.98",
     "warm_lam090": "TRPOPlus + warm start, GAE lambda 0.90",
+    "ppo_g098": "SB3 PPO, gamma 0.98",
     "warm_vf20": "TRPOPlus + warm start, 20 critic epochs",
     "warm_scripted25": "TRPOPlus + warm start, 25 % scripted starts",
     "warm_scripted50": "TRPOPlus + warm start, 50 % scripted starts",
@@ -51,7 +52,8 @@ LABELS = {
 # (session 10: the tuned discount against the zoo's, and against PPO)
 DIAGNOSIS_PAIRS = [
     ("both_cg5", "both"), ("replay", "replay_cg25"), ("both_cg5", "replay"), ("both_cg5", "warm"),
-    ("plain", "trpo_cg0"), ("trpo_cg0", "trpo"), ("warm_g098", "warm"), ("warm_g098", "ppo"),
+    ("plain", "trpo_cg0"), ("trpo_cg0", "trpo"), ("warm_g098", "warm"), ("warm_g098", "ppo"), ("ppo_g098", "ppo"),
+    ("warm_g098", "ppo_g098"),
 ]  # fmt: skip
 AGENT_EPISODES = 20
 BOOTSTRAP_SEED = 0
