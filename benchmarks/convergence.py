@@ -72,7 +72,7 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "warm_kl02": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "target_kl": 0.02}),
     "warm_n128": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "n_steps": 128, "batch_size": 128}),
     # session 10, towards 90 % within 300k on Reacher2D-v1 (docs/results.md): one setting at a time around the
-    # zoo's, after 25 trials of `trpo-plus train -optimize` over rl-zoo3's TRPO space all ended below it
+    # zoo's, after 24 trials of `trpo-plus train -optimize` over rl-zoo3's TRPO space all ended below it
     "warm_std06": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "policy_kwargs": {"log_std_init": -0.5}}),
     "warm_std037": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "policy_kwargs": {"log_std_init": -1.0}}),
     "warm_lam098": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "gae_lambda": 0.98}),
