@@ -56,46 +56,52 @@ TARGETS = {
     "Grasper3D-v3": 0.9,
     "Grasper3D-v4": 0.9,
 }
+# the thesis' two switches; the variants below change one setting on top of one of these
+PLAIN: dict[str, Any] = {"replay_memory": 0, "cg_warm_start": False}
+REPLAY: dict[str, Any] = {"replay_memory": 3, "cg_warm_start": False}
+WARM: dict[str, Any] = {"replay_memory": 0, "cg_warm_start": True}
+BOTH: dict[str, Any] = {"replay_memory": 3, "cg_warm_start": True}
+SCRIPTED25: dict[str, Any] = {"scripted_start_prob": 0.25}  # a quarter of the training resets along the scripted grasp
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
-    "plain": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": False}),
-    "replay": ("trpo_plus", {"replay_memory": 3, "cg_warm_start": False}),
-    "warm": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True}),
-    "both": ("trpo_plus", {"replay_memory": 3, "cg_warm_start": True}),
+    "plain": ("trpo_plus", PLAIN),
+    "replay": ("trpo_plus", REPLAY),
+    "warm": ("trpo_plus", WARM),
+    "both": ("trpo_plus", BOTH),
     "trpo": ("trpo", {}),
     "ppo": ("ppo", {}),
     # sb3-contrib TRPO with its CG started at 0 like TRPOPlus (benchmarks/trpo_divergence.py): same algorithm
     "trpo_cg0": ("trpo", {}),
     # why does the combination hurt? (docs/results.md): CG run closer to convergence, or cut shorter
-    "replay_cg25": ("trpo_plus", {"replay_memory": 3, "cg_warm_start": False, "cg_max_steps": 25}),
-    "both_cg5": ("trpo_plus", {"replay_memory": 3, "cg_warm_start": True, "cg_max_steps": 5}),
+    "replay_cg25": ("trpo_plus", {**REPLAY, "cg_max_steps": 25}),
+    "both_cg5": ("trpo_plus", {**BOTH, "cg_max_steps": 5}),
     # tuning the best variant on Reacher2D-v1 (docs/results.md): a larger trust region, or twice the updates
-    "warm_kl02": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "target_kl": 0.02}),
-    "warm_n128": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "n_steps": 128, "batch_size": 128}),
+    "warm_kl02": ("trpo_plus", {**WARM, "target_kl": 0.02}),
+    "warm_n128": ("trpo_plus", {**WARM, "n_steps": 128, "batch_size": 128}),
     # session 10, towards 90 % within 300k on Reacher2D-v1 (docs/results.md): one setting at a time around the
     # zoo's, after 24 trials of `trpo-plus train -optimize` over rl-zoo3's TRPO space all ended below it
-    "warm_std06": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "policy_kwargs": {"log_std_init": -0.5}}),
-    "warm_std037": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "policy_kwargs": {"log_std_init": -1.0}}),
-    "warm_lam098": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "gae_lambda": 0.98}),
-    "warm_g098": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "gamma": 0.98}),
-    "warm_lam090": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "gae_lambda": 0.9}),
+    "warm_std06": ("trpo_plus", {**WARM, "policy_kwargs": {"log_std_init": -0.5}}),
+    "warm_std037": ("trpo_plus", {**WARM, "policy_kwargs": {"log_std_init": -1.0}}),
+    "warm_lam098": ("trpo_plus", {**WARM, "gae_lambda": 0.98}),
+    "warm_g098": ("trpo_plus", {**WARM, "gamma": 0.98}),
+    "warm_lam090": ("trpo_plus", {**WARM, "gae_lambda": 0.9}),
     "ppo_g098": ("ppo", {"gamma": 0.98}),  # ... and whether the same discount helps PPO as much
-    "warm_vf20": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "n_critic_updates": 20}),
+    "warm_vf20": ("trpo_plus", {**WARM, "n_critic_updates": 20}),
     # Grasper3D-v3: a quarter of the training episodes start along the scripted grasp (Popov et al. 2017)
-    "warm_scripted25": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True}),
+    "warm_scripted25": ("trpo_plus", WARM),
     # Grasper3D-v4: half of the training episodes, and the warm start's share of that result (plain, 25 %)
-    "warm_scripted50": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True}),
-    "plain_scripted25": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": False}),
+    "warm_scripted50": ("trpo_plus", WARM),
+    "plain_scripted25": ("trpo_plus", PLAIN),
     "ppo_scripted25": ("ppo", {}),  # the baseline that led on Reacher2D-v1, with the same training aid
     # PPO with scripted starts learned the lift faster than TRPOPlus: a trust region three times as large
-    "warm_scripted25_kl03": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "target_kl": 0.03}),
+    "warm_scripted25_kl03": ("trpo_plus", {**WARM, "target_kl": 0.03}),
     # ... twice the updates (5,000 samples each), or a smaller initial action std (0.61, log_std_init -0.5)
-    "warm_scripted25_n500": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "n_steps": 500}),
+    "warm_scripted25_n500": ("trpo_plus", {**WARM, "n_steps": 500}),
     "warm_scripted25_std06": (
         "trpo_plus",
-        {"replay_memory": 0, "cg_warm_start": True, "policy_kwargs": {"log_std_init": -0.5}},
+        {**WARM, "policy_kwargs": {"log_std_init": -0.5}},
     ),
     # ... the critic's Adam step size of PPO (3e-4; TRPO's default is 1e-3), the same 10 epochs of minibatches
-    "warm_scripted25_vf3e4": ("trpo_plus", {"replay_memory": 0, "cg_warm_start": True, "learning_rate": 3e-4}),
+    "warm_scripted25_vf3e4": ("trpo_plus", {**WARM, "learning_rate": 3e-4}),
     # ... and PPO with one epoch over each batch instead of ten (20 Adam steps per batch instead of 200)
     "ppo_scripted25_e1": ("ppo", {"n_epochs": 1}),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
@@ -103,8 +109,7 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "warm_sde": (
         "trpo_plus",
         {
-            "replay_memory": 0,
-            "cg_warm_start": True,
+            **WARM,
             "use_sde": True,
             "sde_sample_freq": 100,
             "policy_kwargs": {"log_std_init": -2.0},
@@ -113,15 +118,15 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
 }
 # variants that change the training envs only (the evaluation envs keep the YAML's env_kwargs)
 TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
-    "warm_scripted25": {"scripted_start_prob": 0.25},
+    "warm_scripted25": SCRIPTED25,
     "warm_scripted50": {"scripted_start_prob": 0.5},
-    "plain_scripted25": {"scripted_start_prob": 0.25},
-    "ppo_scripted25": {"scripted_start_prob": 0.25},
-    "warm_scripted25_kl03": {"scripted_start_prob": 0.25},
-    "warm_scripted25_n500": {"scripted_start_prob": 0.25},
-    "warm_scripted25_std06": {"scripted_start_prob": 0.25},
-    "warm_scripted25_vf3e4": {"scripted_start_prob": 0.25},
-    "ppo_scripted25_e1": {"scripted_start_prob": 0.25},
+    "plain_scripted25": SCRIPTED25,
+    "ppo_scripted25": SCRIPTED25,
+    "warm_scripted25_kl03": SCRIPTED25,
+    "warm_scripted25_n500": SCRIPTED25,
+    "warm_scripted25_std06": SCRIPTED25,
+    "warm_scripted25_vf3e4": SCRIPTED25,
+    "ppo_scripted25_e1": SCRIPTED25,
 }
 ZERO_CG_START = {"trpo_cg0"}  # variants whose sb3-contrib TRPO starts its conjugate gradient at 0
 STUDY_VARIANTS = ["plain", "replay", "warm", "both", "trpo", "ppo"]  # the default set of `run`
