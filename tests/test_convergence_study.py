@@ -19,6 +19,16 @@ def test_every_variant_has_a_label_and_every_env_a_target() -> None:
     assert set(convergence.STUDY_VARIANTS) <= set(convergence.VARIANTS)
 
 
+@pytest.mark.parametrize("variant", convergence.STUDY_VARIANTS)
+def test_gamma_099_variants_are_the_study_variants_with_reacher2d_v0s_discount(variant: str) -> None:
+    """Reacher2D-v1's rows from before session 11 differ from today's YAML in the discount only."""
+    algo, overrides = convergence.VARIANTS[variant]
+    assert convergence.VARIANTS[f"{variant}_g099"] == (algo, {**overrides, "gamma": 0.99})
+    old = convergence._hyperparameters(algo, "Reacher2D-v1", convergence.VARIANTS[f"{variant}_g099"][1])
+    assert old == convergence._hyperparameters(algo, "Reacher2D-v0", overrides)  # v1 used v0's settings until then
+    assert convergence._hyperparameters(algo, "Reacher2D-v1", overrides)["gamma"] == 0.98
+
+
 @pytest.mark.parametrize("variant", sorted(convergence.TRAIN_ENV_KWARGS))
 def test_training_env_kwargs_are_accepted_by_the_env(variant: str) -> None:
     assert variant in convergence.VARIANTS
