@@ -65,20 +65,18 @@ SCRIPTED25: dict[str, Any] = {"scripted_start_prob": 0.25}  # a quarter of the t
 # Reacher2D-v1 ran with v0's gamma 0.99 until session 11, when its YAML took 0.98: the rows recorded before keep their
 # discount through the *_g099 variants and the Reacher2D-v1-only variants that set G099 (docs/results.md)
 G099: dict[str, Any] = {"gamma": 0.99}
-VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
+STUDY: dict[str, tuple[str, dict[str, Any]]] = {
     "plain": ("trpo_plus", PLAIN),
     "replay": ("trpo_plus", REPLAY),
     "warm": ("trpo_plus", WARM),
     "both": ("trpo_plus", BOTH),
     "trpo": ("trpo", {}),
     "ppo": ("ppo", {}),
+}
+VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
+    **STUDY,
     # the six above on Reacher2D-v1 before session 11 (gamma 0.99)
-    "plain_g099": ("trpo_plus", {**PLAIN, **G099}),
-    "replay_g099": ("trpo_plus", {**REPLAY, **G099}),
-    "warm_g099": ("trpo_plus", {**WARM, **G099}),
-    "both_g099": ("trpo_plus", {**BOTH, **G099}),
-    "trpo_g099": ("trpo", G099),
-    "ppo_g099": ("ppo", G099),
+    **{f"{name}_g099": (algo, {**overrides, **G099}) for name, (algo, overrides) in STUDY.items()},
     # sb3-contrib TRPO with its CG started at 0 like TRPOPlus (benchmarks/trpo_divergence.py): same algorithm
     "trpo_cg0": ("trpo", G099),
     # why does the combination hurt? (docs/results.md): CG run closer to convergence, or cut shorter
@@ -140,7 +138,7 @@ TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
     "ppo_scripted25_e1": SCRIPTED25,
 }
 ZERO_CG_START = {"trpo_cg0"}  # variants whose sb3-contrib TRPO starts its conjugate gradient at 0
-STUDY_VARIANTS = ["plain", "replay", "warm", "both", "trpo", "ppo"]  # the default set of `run`
+STUDY_VARIANTS = list(STUDY)  # the default set of `run`
 CHUNKS = 25
 EVAL_EPISODES = 20
 EVAL_SEED = 10_000

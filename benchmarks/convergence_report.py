@@ -24,12 +24,6 @@ LABELS = {
     "both": "TRPOPlus + both",
     "trpo": "sb3-contrib TRPO",
     "ppo": "SB3 PPO",
-    "plain_g099": "TRPOPlus plain, gamma 0.99",
-    "replay_g099": "TRPOPlus + replay (k=3), gamma 0.99",
-    "warm_g099": "TRPOPlus + warm start, gamma 0.99",
-    "both_g099": "TRPOPlus + both, gamma 0.99",
-    "trpo_g099": "sb3-contrib TRPO, gamma 0.99",
-    "ppo_g099": "SB3 PPO, gamma 0.99",
     "trpo_cg0": "sb3-contrib TRPO, CG started at 0, gamma 0.99",
     "replay_cg25": "TRPOPlus + replay, 25 CG iterations, gamma 0.99",
     "both_cg5": "TRPOPlus + both, 5 CG iterations, gamma 0.99",
@@ -52,6 +46,7 @@ LABELS = {
     "ppo_scripted25_e1": "SB3 PPO, 25 % scripted starts, 1 epoch per batch",
     "warm_sde": "TRPOPlus + warm start, gSDE",
 }
+LABELS.update({f"{name}_g099": f"{LABELS[name]}, gamma 0.99" for name in STUDY_VARIANTS})
 # why does the combination hurt? each diagnosis variant against the variant it changes (docs/results.md)
 # and is plain TRPOPlus better than sb3-contrib TRPO, or than the same algorithm with another random stream?
 # (all of these ran on Reacher2D-v1 with gamma 0.99); and the discount the YAML took in session 11 against 0.99
