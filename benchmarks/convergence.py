@@ -195,6 +195,11 @@ def model_settings(algo: str, env_id: str, overrides: dict[str, Any]) -> tuple[d
     return params, n_envs, normalize, policy, env_kwargs
 
 
+def training_env_kwargs(variant: str, env_kwargs: dict[str, Any] | None) -> dict[str, Any]:
+    """The YAML's env kwargs with the variant's training-only changes on top (evaluation envs keep the YAML's)."""
+    return {**(env_kwargs or {}), **TRAIN_ENV_KWARGS.get(variant, {})}
+
+
 def new_model(env_id: str, variant: str, seed: int, env: Any = None) -> Any:
     """A new model of ``variant`` (zoo settings plus its switches), unmonitored, for the diagnostic scripts.
 
@@ -210,7 +215,7 @@ def new_model(env_id: str, variant: str, seed: int, env: Any = None) -> Any:
     algo, overrides = VARIANTS[variant]
     params, n_envs, normalize, policy, env_kwargs = model_settings(algo, env_id, overrides)
     if env is None:
-        train_env_kwargs = {**(env_kwargs or {}), **TRAIN_ENV_KWARGS.get(variant, {})}
+        train_env_kwargs = training_env_kwargs(variant, env_kwargs)
         env = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=train_env_kwargs)
         env = VecNormalize(env, gamma=params.get("gamma", 0.99)) if normalize else env
     return algorithms()[algo](policy, env, seed=seed, device="cpu", **params)
@@ -251,7 +256,7 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
     params, n_envs, normalize, policy, env_kwargs = model_settings(algo, env_id, overrides)
     algo_class = algorithms()[algo]
     monitor = {"info_keywords": ("is_success",)}
-    train_env_kwargs = {**(env_kwargs or {}), **TRAIN_ENV_KWARGS.get(variant, {})}
+    train_env_kwargs = training_env_kwargs(variant, env_kwargs)
     venv = make_vec_env(
         env_id, n_envs=n_envs, seed=seed + 100_000 * len(rows), env_kwargs=train_env_kwargs, monitor_kwargs=monitor
     )
