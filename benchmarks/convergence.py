@@ -65,6 +65,8 @@ SCRIPTED25: dict[str, Any] = {"scripted_start_prob": 0.25}  # a quarter of the t
 # Reacher2D-v1 ran with v0's gamma 0.99 until session 11, when its YAML took 0.98: the rows recorded before keep their
 # discount through the *_g099 variants and the Reacher2D-v1-only variants that set G099 (docs/results.md)
 G099: dict[str, Any] = {"gamma": 0.99}
+# WallReacher3D-v0 likewise until session 12 (the YAML's gamma went from the thesis' 0.995 to 0.98): *_g0995
+G0995: dict[str, Any] = {"gamma": 0.995}
 STUDY: dict[str, tuple[str, dict[str, Any]]] = {
     "plain": ("trpo_plus", PLAIN),
     "replay": ("trpo_plus", REPLAY),
@@ -77,6 +79,8 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     **STUDY,
     # the six above on Reacher2D-v1 before session 11 (gamma 0.99)
     **{f"{name}_g099": (algo, {**overrides, **G099}) for name, (algo, overrides) in STUDY.items()},
+    # the six above on WallReacher3D-v0 before session 12 (gamma 0.995)
+    **{f"{name}_g0995": (algo, {**overrides, **G0995}) for name, (algo, overrides) in STUDY.items()},
     # sb3-contrib TRPO with its CG started at 0 like TRPOPlus (benchmarks/trpo_divergence.py): same algorithm
     "trpo_cg0": ("trpo", G099),
     # why does the combination hurt? (docs/results.md): CG run closer to convergence, or cut shorter
@@ -93,8 +97,6 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "warm_lam098": ("trpo_plus", {**WARM, **G099, "gae_lambda": 0.98}),
     "warm_lam090": ("trpo_plus", {**WARM, **G099, "gae_lambda": 0.9}),
     "warm_vf20": ("trpo_plus", {**WARM, **G099, "n_critic_updates": 20}),
-    # the same discount on WallReacher3D-v0 (YAML: 0.995)
-    "warm_g098": ("trpo_plus", {**WARM, "gamma": 0.98}),
     # Grasper3D-v3: a quarter of the training episodes start along the scripted grasp (Popov et al. 2017)
     "warm_scripted25": ("trpo_plus", WARM),
     # Grasper3D-v4: half of the training episodes, and the warm start's share of that result (plain, 25 %)

@@ -34,7 +34,6 @@ LABELS = {
     "warm_lam098": "TRPOPlus + warm start, GAE lambda 0.98, gamma 0.99",
     "warm_lam090": "TRPOPlus + warm start, GAE lambda 0.90, gamma 0.99",
     "warm_vf20": "TRPOPlus + warm start, 20 critic epochs, gamma 0.99",
-    "warm_g098": "TRPOPlus + warm start, gamma 0.98",
     "warm_scripted25": "TRPOPlus + warm start, 25 % scripted starts",
     "warm_scripted50": "TRPOPlus + warm start, 50 % scripted starts",
     "plain_scripted25": "TRPOPlus plain, 25 % scripted starts",
@@ -47,6 +46,7 @@ LABELS = {
     "warm_sde": "TRPOPlus + warm start, gSDE",
 }
 LABELS.update({f"{name}_g099": f"{LABELS[name]}, gamma 0.99" for name in STUDY_VARIANTS})
+LABELS.update({f"{name}_g0995": f"{LABELS[name]}, gamma 0.995" for name in STUDY_VARIANTS})
 # why does the combination hurt? each diagnosis variant against the variant it changes (docs/results.md)
 # and is plain TRPOPlus better than sb3-contrib TRPO, or than the same algorithm with another random stream?
 # (all of these ran on Reacher2D-v1 with gamma 0.99); and the discount the YAML took in session 11 against 0.99

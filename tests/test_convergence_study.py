@@ -29,6 +29,17 @@ def test_gamma_099_variants_are_the_study_variants_with_reacher2d_v0s_discount(v
     assert convergence._hyperparameters(algo, "Reacher2D-v1", overrides)["gamma"] == 0.98
 
 
+@pytest.mark.parametrize("variant", convergence.STUDY_VARIANTS)
+def test_gamma_0995_variants_are_the_study_variants_with_the_thesis_discount(variant: str) -> None:
+    """WallReacher3D-v0's rows from before session 12 differ from today's YAML in the discount only."""
+    algo, overrides = convergence.VARIANTS[variant]
+    assert convergence.VARIANTS[f"{variant}_g0995"] == (algo, {**overrides, "gamma": 0.995})
+    old = convergence._hyperparameters(algo, "WallReacher3D-v0", convergence.VARIANTS[f"{variant}_g0995"][1])
+    # until then WallReacher3D-v0 used Reacher3D-v0's settings (the thesis')
+    assert old == convergence._hyperparameters(algo, "Reacher3D-v0", overrides)
+    assert convergence._hyperparameters(algo, "WallReacher3D-v0", overrides)["gamma"] == 0.98
+
+
 @pytest.mark.parametrize("variant", sorted(convergence.TRAIN_ENV_KWARGS))
 def test_training_env_kwargs_are_accepted_by_the_env(variant: str) -> None:
     assert variant in convergence.VARIANTS
