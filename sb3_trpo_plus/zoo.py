@@ -8,11 +8,14 @@ import re
 import sys
 import types
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
 from gymnasium.envs.registration import registry
 from torch import nn
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
 ZOO_DIR = Path(__file__).resolve().parent.parent / "zoo_hyperparams"
 ALGO_FILES = {"trpo_plus": "trpo_plus.yml", "trpo": "trpo.yml", "ppo": "ppo.yml"}
@@ -50,7 +53,7 @@ class HyperparameterError(ValueError):
     """A hyperparameter file that cannot be used; the message names the file, the env and the key."""
 
 
-def algorithms() -> dict[str, type]:
+def algorithms() -> dict[str, type[OnPolicyAlgorithm]]:
     from sb3_contrib import TRPO
     from stable_baselines3 import PPO
 
