@@ -92,14 +92,14 @@ def figure(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]], path
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     grid = np.linspace(0, BUDGETS[env_id], 101)
-    for variant, seeds in runs.items():
-        if not seeds:
-            continue
+    colors = plt.get_cmap("tab10").colors
+    for i, (variant, seeds) in enumerate((v, s) for v, s in runs.items() if s):
+        color, style = colors[i % 10], ("-", "--", ":")[i // 10 % 3]  # past ten variants the colours repeat dashed
         for ax, key in zip(axes, ("eval_return", "eval_success"), strict=True):
             curves = np.array([_curve(rows, key, grid) for rows in seeds.values()])
             mean, std = curves.mean(axis=0), curves.std(axis=0)
-            ax.plot(grid, mean, label=f"{LABELS[variant]} ({len(seeds)})")
-            ax.fill_between(grid, mean - std, mean + std, alpha=0.2)
+            ax.plot(grid, mean, color=color, linestyle=style, label=f"{LABELS[variant]} ({len(seeds)})")
+            ax.fill_between(grid, mean - std, mean + std, color=color, alpha=0.2)
     axes[0].set_ylabel(f"evaluation return ({EVAL_EPISODES} episodes)")
     axes[1].set_ylabel("evaluation success rate")
     axes[1].axhline(TARGETS[env_id], color="k", linestyle=":", linewidth=1)
