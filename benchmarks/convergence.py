@@ -62,11 +62,11 @@ REPLAY: dict[str, Any] = {"replay_memory": 3, "cg_warm_start": False}
 WARM: dict[str, Any] = {"replay_memory": 0, "cg_warm_start": True}
 BOTH: dict[str, Any] = {"replay_memory": 3, "cg_warm_start": True}
 SCRIPTED25: dict[str, Any] = {"scripted_start_prob": 0.25}  # a quarter of the training resets along the scripted grasp
-# Reacher2D-v1 ran with v0's gamma 0.99 until session 11, when its YAML took 0.98: the rows recorded before keep their
-# discount through the *_g099 variants and the Reacher2D-v1-only variants that set G099 (docs/results.md)
-G099: dict[str, Any] = {"gamma": 0.99}
-# WallReacher3D-v0 likewise until session 12 (the YAML's gamma went from the thesis' 0.995 to 0.98): *_g0995
-G0995: dict[str, Any] = {"gamma": 0.995}
+# Discounts the YAML had before it took gamma 0.98: Reacher2D-v1 ran with v0's 0.99 until session 11, WallReacher3D-v0
+# with the thesis' 0.995 until session 12. The rows recorded before keep their discount through the variants
+# <study variant>_<suffix> and the Reacher2D-v1-only variants that set G099 (docs/results.md)
+FORMER_DISCOUNTS: dict[str, float] = {"g099": 0.99, "g0995": 0.995}
+G099: dict[str, Any] = {"gamma": FORMER_DISCOUNTS["g099"]}
 STUDY: dict[str, tuple[str, dict[str, Any]]] = {
     "plain": ("trpo_plus", PLAIN),
     "replay": ("trpo_plus", REPLAY),
@@ -77,10 +77,12 @@ STUDY: dict[str, tuple[str, dict[str, Any]]] = {
 }
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     **STUDY,
-    # the six above on Reacher2D-v1 before session 11 (gamma 0.99)
-    **{f"{name}_g099": (algo, {**overrides, **G099}) for name, (algo, overrides) in STUDY.items()},
-    # the six above on WallReacher3D-v0 before session 12 (gamma 0.995)
-    **{f"{name}_g0995": (algo, {**overrides, **G0995}) for name, (algo, overrides) in STUDY.items()},
+    # the six above with a former discount (*_g099: Reacher2D-v1 before session 11, *_g0995: WallReacher3D-v0 before 12)
+    **{
+        f"{name}_{suffix}": (algo, {**overrides, "gamma": gamma})
+        for suffix, gamma in FORMER_DISCOUNTS.items()
+        for name, (algo, overrides) in STUDY.items()
+    },
     # sb3-contrib TRPO with its CG started at 0 like TRPOPlus (benchmarks/trpo_divergence.py): same algorithm
     "trpo_cg0": ("trpo", G099),
     # why does the combination hurt? (docs/results.md): CG run closer to convergence, or cut shorter

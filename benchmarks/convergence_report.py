@@ -14,7 +14,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from convergence import BUDGETS, EVAL_EPISODES, ROOT, STUDY_VARIANTS, TARGETS, VARIANTS, job_folder, read_progress
+from convergence import (
+    BUDGETS,
+    EVAL_EPISODES,
+    FORMER_DISCOUNTS,
+    ROOT,
+    STUDY_VARIANTS,
+    TARGETS,
+    VARIANTS,
+    job_folder,
+    read_progress,
+)
 
 BEGIN, END = "<!-- convergence-report:begin -->", "<!-- convergence-report:end -->"
 LABELS = {
@@ -45,8 +55,13 @@ LABELS = {
     "ppo_scripted25_e1": "SB3 PPO, 25 % scripted starts, 1 epoch per batch",
     "warm_sde": "TRPOPlus + warm start, gSDE",
 }
-LABELS.update({f"{name}_g099": f"{LABELS[name]}, gamma 0.99" for name in STUDY_VARIANTS})
-LABELS.update({f"{name}_g0995": f"{LABELS[name]}, gamma 0.995" for name in STUDY_VARIANTS})
+LABELS.update(
+    {
+        f"{name}_{suffix}": f"{LABELS[name]}, gamma {gamma}"
+        for suffix, gamma in FORMER_DISCOUNTS.items()
+        for name in STUDY_VARIANTS
+    }
+)
 # why does the combination hurt? each diagnosis variant against the variant it changes (docs/results.md)
 # and is plain TRPOPlus better than sb3-contrib TRPO, or than the same algorithm with another random stream?
 # (all of these ran on Reacher2D-v1 with gamma 0.99); and the discount the YAML took in session 11 against 0.99

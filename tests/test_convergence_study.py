@@ -19,25 +19,23 @@ def test_every_variant_has_a_label_and_every_env_a_target() -> None:
     assert set(convergence.STUDY_VARIANTS) <= set(convergence.VARIANTS)
 
 
+@pytest.mark.parametrize(
+    ("suffix", "gamma", "env_id", "settings_until_then"),
+    [
+        ("g099", 0.99, "Reacher2D-v1", "Reacher2D-v0"),  # before session 11, v1 used v0's settings
+        ("g0995", 0.995, "WallReacher3D-v0", "Reacher3D-v0"),  # before session 12, the thesis' 3D settings
+    ],
+)
 @pytest.mark.parametrize("variant", convergence.STUDY_VARIANTS)
-def test_gamma_099_variants_are_the_study_variants_with_reacher2d_v0s_discount(variant: str) -> None:
-    """Reacher2D-v1's rows from before session 11 differ from today's YAML in the discount only."""
+def test_former_discount_variants_are_the_study_variants_with_the_old_discount(
+    variant: str, suffix: str, gamma: float, env_id: str, settings_until_then: str
+) -> None:
+    """An env's rows from before its YAML took gamma 0.98 differ from today's YAML in the discount only."""
     algo, overrides = convergence.VARIANTS[variant]
-    assert convergence.VARIANTS[f"{variant}_g099"] == (algo, {**overrides, "gamma": 0.99})
-    old = convergence._hyperparameters(algo, "Reacher2D-v1", convergence.VARIANTS[f"{variant}_g099"][1])
-    assert old == convergence._hyperparameters(algo, "Reacher2D-v0", overrides)  # v1 used v0's settings until then
-    assert convergence._hyperparameters(algo, "Reacher2D-v1", overrides)["gamma"] == 0.98
-
-
-@pytest.mark.parametrize("variant", convergence.STUDY_VARIANTS)
-def test_gamma_0995_variants_are_the_study_variants_with_the_thesis_discount(variant: str) -> None:
-    """WallReacher3D-v0's rows from before session 12 differ from today's YAML in the discount only."""
-    algo, overrides = convergence.VARIANTS[variant]
-    assert convergence.VARIANTS[f"{variant}_g0995"] == (algo, {**overrides, "gamma": 0.995})
-    old = convergence._hyperparameters(algo, "WallReacher3D-v0", convergence.VARIANTS[f"{variant}_g0995"][1])
-    # until then WallReacher3D-v0 used Reacher3D-v0's settings (the thesis')
-    assert old == convergence._hyperparameters(algo, "Reacher3D-v0", overrides)
-    assert convergence._hyperparameters(algo, "WallReacher3D-v0", overrides)["gamma"] == 0.98
+    assert convergence.VARIANTS[f"{variant}_{suffix}"] == (algo, {**overrides, "gamma": gamma})
+    old = convergence._hyperparameters(algo, env_id, convergence.VARIANTS[f"{variant}_{suffix}"][1])
+    assert old == convergence._hyperparameters(algo, settings_until_then, overrides)
+    assert convergence._hyperparameters(algo, env_id, overrides)["gamma"] == 0.98
 
 
 @pytest.mark.parametrize("variant", sorted(convergence.TRAIN_ENV_KWARGS))
