@@ -117,6 +117,9 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "warm_scripted25_vf3e4": ("trpo_plus", {**WARM, "learning_rate": 3e-4}),
     # ... and PPO with one epoch over each batch instead of ten (20 Adam steps per batch instead of 200)
     "ppo_scripted25_e1": ("ppo", {"n_epochs": 1}),
+    # Grasper3D-v4 with the shorter horizon that met the WallReacher3D and Reacher2D-v1 targets (session 13)
+    "warm_scripted25_g098": ("trpo_plus", {**WARM, "gamma": 0.98}),
+    "plain_scripted25_g098": ("trpo_plus", {**PLAIN, "gamma": 0.98}),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (
@@ -140,6 +143,8 @@ TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
     "warm_scripted25_std06": SCRIPTED25,
     "warm_scripted25_vf3e4": SCRIPTED25,
     "ppo_scripted25_e1": SCRIPTED25,
+    "warm_scripted25_g098": SCRIPTED25,
+    "plain_scripted25_g098": SCRIPTED25,
 }
 ZERO_CG_START = {"trpo_cg0"}  # variants whose sb3-contrib TRPO starts its conjugate gradient at 0
 STUDY_VARIANTS = list(STUDY)  # the default set of `run`
