@@ -109,7 +109,7 @@ def figure(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]], path
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     grid = np.linspace(0, BUDGETS[env_id], 101)
-    colors = plt.get_cmap("tab10").colors
+    colors = [plt.get_cmap("tab10")(i) for i in range(10)]
     for i, (variant, seeds) in enumerate((v, s) for v, s in runs.items() if s):
         color, style = colors[i % 10], ("-", "--", ":")[i // 10 % 3]  # past ten variants the colours repeat dashed
         for ax, key in zip(axes, ("eval_return", "eval_success"), strict=True):
@@ -176,7 +176,7 @@ def diagnostics_table(runs: dict[str, dict[int, list[dict[str, float]]]]) -> lis
             continue
         cells = []
         for key in keys:
-            values = [np.nanmean([row.get(key, np.nan) for row in rows]) for rows in seeds.values()]
+            values = [float(np.nanmean([row.get(key, np.nan) for row in rows])) for rows in seeds.values()]
             cells.append(_fmt(values, 3))
         lines.append(f"| {LABELS[variant]} | " + " | ".join(cells) + " |")
     return lines

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import platform
 import time
+from typing import Any
 
 import gymnasium as gym
 import mujoco
@@ -22,7 +23,9 @@ def time_env_step(env_id: str, steps: int) -> float:
     env = gym.make(env_id)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
-    actions = rng.uniform(env.action_space.low, env.action_space.high, size=(steps, *env.action_space.shape))
+    space = env.action_space
+    assert isinstance(space, gym.spaces.Box), f"{env_id}: Box actions expected, got {space}"
+    actions = rng.uniform(space.low, space.high, size=(steps, *space.shape))
     start = time.perf_counter()
     for action in actions:
         _, _, terminated, truncated, _ = env.step(action)
@@ -32,7 +35,7 @@ def time_env_step(env_id: str, steps: int) -> float:
 
 
 def time_mj_step(env_id: str, steps: int) -> float:
-    unwrapped = gym.make(env_id).unwrapped
+    unwrapped: Any = gym.make(env_id).unwrapped  # a MujocoEnv
     model, data, frame_skip = unwrapped.model, unwrapped.data, unwrapped.frame_skip
     unwrapped.reset(seed=0)
     rng = np.random.default_rng(0)
@@ -61,7 +64,8 @@ def main() -> None:
             raw.append(time_mj_step(env_id, args.steps))
             full.append(time_env_step(env_id, args.steps))
         r, f = float(np.median(raw)), float(np.median(full))
-        frame_skip = gym.make(env_id).unwrapped.frame_skip
+        unwrapped: Any = gym.make(env_id).unwrapped  # a MujocoEnv
+        frame_skip = unwrapped.frame_skip
         print(f"| {env_id} | {frame_skip} | {r * 1e6:.1f} | {f * 1e6:.1f} | {f / r:.2f} | {1 / f:,.0f} |")
 
 

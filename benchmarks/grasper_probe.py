@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -36,9 +37,10 @@ def probe(
     returns, successes, vertical = [], [], []
     for episode in range(episodes):
         env.seed(PROBE_SEED + episode)
-        obs, total, grasped_once, done = env.reset(), 0.0, False, np.array([False])
+        obs: Any = env.reset()
+        total, grasped_once, done = 0.0, False, np.array([False])
         while not done[0]:  # the TimeLimit ends it (the VecEnv then resets; infos[0] is the last step's)
-            action, _ = model.predict(obs, deterministic=deterministic)  # type: ignore[arg-type]
+            action, _ = model.predict(obs, deterministic=deterministic)
             grasped = arm._is_grasped(arm._contacts)
             grasped_once = grasped_once or grasped
             if grasped:

@@ -25,13 +25,13 @@ import torch as th
 from sb3_contrib import TRPO
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
-from stable_baselines3.common.vec_env import VecNormalize
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 from torch import nn
 
 import grasp_envs  # noqa: F401
 from sb3_trpo_plus import TRPOPlus
 
-ALGOS = {"trpo": TRPO, "trpo_plus": TRPOPlus}
+ALGOS: dict[str, type[TRPO]] = {"trpo": TRPO, "trpo_plus": TRPOPlus}
 
 
 class EpisodeStats(BaseCallback):
@@ -77,7 +77,7 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     log_path, model_path, stats_path = out / f"{name}.json", out / f"{name}_model.zip", out / f"{name}_vecnormalize.pkl"
-    log = json.loads(log_path.read_text()) if log_path.exists() else {"settings": vars(args), "chunks": []}
+    log: dict[str, Any] = json.loads(log_path.read_text()) if log_path.exists() else {"settings": vars(args), "chunks": []}
     if args.diagnose:
         diagnose(
             ALGOS[args.algo], model_path, stats_path, {"reward_mode": args.reward_mode, **args.env_kwargs}, env_id=args.env
@@ -118,7 +118,7 @@ def main() -> None:
 
 
 def diagnose(
-    algo: type,
+    algo: type[TRPO],
     model_path: Path,
     stats_path: Path,
     env_kwargs: dict[str, Any],
@@ -130,12 +130,13 @@ def diagnose(
     env = VecNormalize.load(str(stats_path), venv)
     env.training, env.norm_reward = False, False
     model = algo.load(model_path, env=env)
-    arm = venv.envs[0].unwrapped
+    assert isinstance(venv, DummyVecEnv)  # make_vec_env's default
+    arm: Any = venv.envs[0].unwrapped
     rows: dict[str, list[float]] = {"grip-cube distance (m)": [], "right half touches": [], "left half touches": [],
                                     "claw angle (rad)": [], "claw action": [], "forearm axis z": [], "cube height (m)": [],
                                     "cube between the halves": []}  # fmt: skip
     for _ in range(episodes):
-        obs = env.reset()
+        obs: Any = env.reset()
         for _ in range(100):
             action, _ = model.predict(obs, deterministic=True)
             obs, _, done, _ = env.step(action)

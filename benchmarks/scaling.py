@@ -51,10 +51,12 @@ def collection_rate(env_id: str, label: str, n_envs: int, samples: int, repeats:
     model._setup_learn(10**9, None)
     callback = CallbackList([])
     callback.init_callback(model)
+    model_env = model.get_env()
+    assert model_env is not None
     rates = []
     for _ in range(repeats + 1):
         start = time.perf_counter()
-        model.collect_rollouts(model.env, callback, model.rollout_buffer, n_steps)
+        model.collect_rollouts(model_env, callback, model.rollout_buffer, n_steps)
         rates.append(n_steps * n_envs / (time.perf_counter() - start))
     env.close()
     return rates[1:]  # first repeat is warm-up

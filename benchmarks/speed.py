@@ -109,7 +109,7 @@ class PhaseTimer:
 
 
 def raw_mujoco_time(env_id: str, physics_steps: int, frame_skip: int) -> float:
-    unwrapped = gym.make(env_id).unwrapped
+    unwrapped: Any = gym.make(env_id).unwrapped  # a MujocoEnv
     unwrapped.reset(seed=0)
     model, data = unwrapped.model, unwrapped.data
     low, high = model.actuator_ctrlrange.T
@@ -123,7 +123,7 @@ def raw_mujoco_time(env_id: str, physics_steps: int, frame_skip: int) -> float:
 
 def build(name: str, env_id: str, n_envs: int, n_steps: int, seed: int) -> Any:
     env = make_vec_env(env_id, n_envs=n_envs, seed=seed)
-    common = dict(
+    common: dict[str, Any] = dict(
         n_steps=n_steps, batch_size=n_steps * n_envs // 4, cg_max_steps=10, n_critic_updates=10, seed=seed,
         policy_kwargs=dict(net_arch=[100, 100], activation_fn=nn.Tanh), device="cpu",
     )  # fmt: skip
@@ -188,7 +188,8 @@ def main() -> None:
         for name, model in models.items():  # warm-up, and fills the replay memory
             model.learn(samples * (4 if "k=3" in name else 1))
         rows: dict[str, list[dict[str, float]]] = defaultdict(list)
-        frame_skip = gym.make(env_id).unwrapped.frame_skip
+        unwrapped: Any = gym.make(env_id).unwrapped  # a MujocoEnv
+        frame_skip = unwrapped.frame_skip
         for _ in range(args.repeats):
             for name, model in models.items():
                 timers[name].reset()

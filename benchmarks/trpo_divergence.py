@@ -106,7 +106,7 @@ def update_agreement(env_id: str, seed: int, updates: int) -> list[float]:
         th.set_rng_state(torch_state)
         plus_train()
         step_plus, step_reference = _flat_parameters(plus) - before, _flat_parameters(reference) - before
-        ratios.append(float(np.linalg.norm(step_reference - step_plus) / max(np.linalg.norm(step_plus), 1e-12)))
+        ratios.append(float(np.linalg.norm(step_reference - step_plus) / max(float(np.linalg.norm(step_plus)), 1e-12)))
 
     plus.train = compared_train  # type: ignore[method-assign]
     plus.learn(plus.n_steps * plus.n_envs * updates)

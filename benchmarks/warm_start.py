@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -23,7 +24,7 @@ from torch import nn
 
 from sb3_trpo_plus import TRPOPlus
 
-VARIANTS = {
+VARIANTS: dict[str, dict[str, Any]] = {
     "zero_start": dict(cg_warm_start=False),
     "warm_raw": dict(cg_warm_start=True, cg_warm_start_rescale=False),
     "warm_rescaled": dict(cg_warm_start=True, cg_warm_start_rescale=True),
@@ -56,6 +57,7 @@ def run(env_id: str, variant: str, seed: int, steps: int, cg_max_steps: int) -> 
     model.learn(steps, callback=recorder)
     env.training, env.norm_reward = False, False
     mean_return, _ = evaluate_policy(model, env, n_eval_episodes=20)
+    assert isinstance(mean_return, float)  # the mean (a list only with return_episode_rewards)
     rows = recorder.rows[1:]  # the first update has no previous step
     return {
         "env": env_id, "variant": variant, "seed": seed, "steps": steps, "cg_max_steps": cg_max_steps,
