@@ -61,7 +61,7 @@ PLAIN: dict[str, Any] = {"replay_memory": 0, "cg_warm_start": False}
 REPLAY: dict[str, Any] = {"replay_memory": 3, "cg_warm_start": False}
 WARM: dict[str, Any] = {"replay_memory": 0, "cg_warm_start": True}
 BOTH: dict[str, Any] = {"replay_memory": 3, "cg_warm_start": True}
-SCRIPTED25: dict[str, Any] = {"scripted_start_prob": 0.25}  # a quarter of the training resets along the scripted grasp
+SCRIPTED, SCRIPTED25 = "scripted25", {"scripted_start_prob": 0.25}  # a quarter of the training resets along the scripted grasp
 # Discounts the YAML had before it took gamma 0.98: Reacher2D-v1 ran with v0's 0.99 until session 11, WallReacher3D-v0
 # with the thesis' 0.995 until session 12. The rows recorded before keep their discount through the variants
 # <study variant>_<suffix> and the Reacher2D-v1-only variants that set G099 (docs/results.md)
@@ -99,12 +99,11 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "warm_lam098": ("trpo_plus", {**WARM, **G099, "gae_lambda": 0.98}),
     "warm_lam090": ("trpo_plus", {**WARM, **G099, "gae_lambda": 0.9}),
     "warm_vf20": ("trpo_plus", {**WARM, **G099, "n_critic_updates": 20}),
-    # Grasper3D-v3: a quarter of the training episodes start along the scripted grasp (Popov et al. 2017)
-    "warm_scripted25": ("trpo_plus", WARM),
-    # Grasper3D-v4: half of the training episodes, and the warm start's share of that result (plain, 25 %)
+    # Grasper3D-v3/-v4: the six above with a quarter of the training episodes starting along the scripted grasp
+    # (Popov et al. 2017; TRAIN_ENV_KWARGS); run so far: warm (v3, v4), plain and PPO (v4)
+    **{f"{name}_{SCRIPTED}": (algo, overrides) for name, (algo, overrides) in STUDY.items()},
+    # Grasper3D-v4: half of the training episodes
     "warm_scripted50": ("trpo_plus", WARM),
-    "plain_scripted25": ("trpo_plus", PLAIN),
-    "ppo_scripted25": ("ppo", {}),  # the baseline that led on Reacher2D-v1, with the same training aid
     # PPO with scripted starts learned the lift faster than TRPOPlus: a trust region three times as large
     "warm_scripted25_kl03": ("trpo_plus", {**WARM, "target_kl": 0.03}),
     # ... twice the updates (5,000 samples each), or a smaller initial action std (0.61, log_std_init -0.5)
@@ -134,10 +133,8 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
 }
 # variants that change the training envs only (the evaluation envs keep the YAML's env_kwargs)
 TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
-    "warm_scripted25": SCRIPTED25,
+    **{f"{name}_{SCRIPTED}": SCRIPTED25 for name in STUDY},
     "warm_scripted50": {"scripted_start_prob": 0.5},
-    "plain_scripted25": SCRIPTED25,
-    "ppo_scripted25": SCRIPTED25,
     "warm_scripted25_kl03": SCRIPTED25,
     "warm_scripted25_n500": SCRIPTED25,
     "warm_scripted25_std06": SCRIPTED25,

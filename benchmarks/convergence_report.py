@@ -19,6 +19,7 @@ from convergence import (
     EVAL_EPISODES,
     FORMER_DISCOUNTS,
     ROOT,
+    SCRIPTED,
     STUDY_VARIANTS,
     TARGETS,
     VARIANTS,
@@ -44,10 +45,7 @@ LABELS = {
     "warm_lam098": "TRPOPlus + warm start, GAE lambda 0.98, gamma 0.99",
     "warm_lam090": "TRPOPlus + warm start, GAE lambda 0.90, gamma 0.99",
     "warm_vf20": "TRPOPlus + warm start, 20 critic epochs, gamma 0.99",
-    "warm_scripted25": "TRPOPlus + warm start, 25 % scripted starts",
     "warm_scripted50": "TRPOPlus + warm start, 50 % scripted starts",
-    "plain_scripted25": "TRPOPlus plain, 25 % scripted starts",
-    "ppo_scripted25": "SB3 PPO, 25 % scripted starts",
     "warm_scripted25_kl03": "TRPOPlus + warm start, 25 % scripted starts, target_kl 0.03",
     "warm_scripted25_n500": "TRPOPlus + warm start, 25 % scripted starts, 5,000 samples per update",
     "warm_scripted25_std06": "TRPOPlus + warm start, 25 % scripted starts, initial std 0.61",
@@ -64,6 +62,7 @@ LABELS.update(
         for name in STUDY_VARIANTS
     }
 )
+LABELS.update({f"{name}_{SCRIPTED}": f"{LABELS[name]}, 25 % scripted starts" for name in STUDY_VARIANTS})
 # why does the combination hurt? each diagnosis variant against the variant it changes (docs/results.md)
 # and is plain TRPOPlus better than sb3-contrib TRPO, or than the same algorithm with another random stream?
 # (all of these ran on Reacher2D-v1 with gamma 0.99); and the discount the YAML took in session 11 against 0.99

@@ -38,6 +38,21 @@ def test_former_discount_variants_are_the_study_variants_with_the_old_discount(
     assert convergence._hyperparameters(algo, env_id, overrides)["gamma"] == 0.98
 
 
+@pytest.mark.parametrize("variant", convergence.STUDY_VARIANTS)
+def test_scripted_start_variants_change_the_training_envs_only(variant: str) -> None:
+    """<variant>_scripted25 trains like <variant> on envs whose resets follow the scripted grasp a quarter of the
+    time; its evaluation envs are the YAML's (no scripted starts)."""
+    scripted = f"{variant}_{convergence.SCRIPTED}"
+    algo, overrides = convergence.VARIANTS[variant]
+    assert convergence.VARIANTS[scripted] == (algo, overrides)
+    settings = convergence.model_settings(algo, "Grasper3D-v4", overrides)
+    assert convergence.model_settings(algo, "Grasper3D-v4", convergence.VARIANTS[scripted][1]) == settings
+    yaml_env_kwargs = settings[4]
+    assert "scripted_start_prob" not in (yaml_env_kwargs or {})
+    assert convergence.training_env_kwargs(scripted, yaml_env_kwargs)["scripted_start_prob"] == 0.25
+    assert "scripted_start_prob" not in convergence.training_env_kwargs(variant, yaml_env_kwargs)
+
+
 @pytest.mark.parametrize("variant", sorted(convergence.TRAIN_ENV_KWARGS))
 def test_training_env_kwargs_are_accepted_by_the_env(variant: str) -> None:
     assert variant in convergence.VARIANTS
