@@ -277,7 +277,8 @@ def write_report(out: Path, docs: Path) -> None:
             f"### {env_id}",
             "",
             f"Budget {BUDGETS[env_id]:,} env steps; seeds {', '.join(map(str, seeds))}; "
-            f"{hours:.2f} h of training in all (one CPU thread per run, two runs at a time).",
+            f"{hours:.2f} h of training in all (one CPU thread per run, mostly two runs at a time; "
+            "exceptions under *How it was run*).",
             "",
             f"![{env_id} learning curves](images/{image.name})",
             "",
