@@ -131,17 +131,11 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
         },
     ),
 }
-# variants that change the training envs only (the evaluation envs keep the YAML's env_kwargs)
+# variants that change the training envs only (the evaluation envs keep the YAML's env_kwargs): every variant
+# named <...>_scripted25<...> starts a quarter of its training episodes along the scripted grasp
 TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
-    **{f"{name}_{SCRIPTED}": SCRIPTED25 for name in STUDY},
+    **{name: SCRIPTED25 for name in VARIANTS if f"_{SCRIPTED}" in name},
     "warm_scripted50": {"scripted_start_prob": 0.5},
-    "warm_scripted25_kl03": SCRIPTED25,
-    "warm_scripted25_n500": SCRIPTED25,
-    "warm_scripted25_std06": SCRIPTED25,
-    "warm_scripted25_vf3e4": SCRIPTED25,
-    "ppo_scripted25_e1": SCRIPTED25,
-    "warm_scripted25_g098": SCRIPTED25,
-    "plain_scripted25_g098": SCRIPTED25,
 }
 ZERO_CG_START = {"trpo_cg0"}  # variants whose sb3-contrib TRPO starts its conjugate gradient at 0
 STUDY_VARIANTS = list(STUDY)  # the default set of `run`
