@@ -26,6 +26,7 @@ import numpy as np
 import sb3_contrib
 import stable_baselines3
 import torch as th
+from env_speed import time_mj_step  # benchmarks/ is on sys.path when this file runs as a script
 from sb3_contrib import TRPO
 from stable_baselines3.common.env_util import make_vec_env
 from torch import nn
@@ -108,19 +109,6 @@ class PhaseTimer:
         self.fvp = 0
 
 
-def raw_mujoco_time(env_id: str, physics_steps: int, frame_skip: int) -> float:
-    unwrapped: Any = gym.make(env_id).unwrapped  # a MujocoEnv
-    unwrapped.reset(seed=0)
-    model, data = unwrapped.model, unwrapped.data
-    low, high = model.actuator_ctrlrange.T
-    controls = np.random.default_rng(0).uniform(low, high, size=(physics_steps // frame_skip, model.nu))
-    start = time.perf_counter()
-    for ctrl in controls:
-        data.ctrl[:] = ctrl
-        mujoco.mj_step(model, data, nstep=frame_skip)
-    return time.perf_counter() - start
-
-
 def build(name: str, env_id: str, n_envs: int, n_steps: int, seed: int) -> Any:
     env = make_vec_env(env_id, n_envs=n_envs, seed=seed)
     common: dict[str, Any] = dict(
@@ -188,8 +176,6 @@ def main() -> None:
         for name, model in models.items():  # warm-up, and fills the replay memory
             model.learn(samples * (4 if "k=3" in name else 1))
         rows: dict[str, list[dict[str, float]]] = defaultdict(list)
-        unwrapped: Any = gym.make(env_id).unwrapped  # a MujocoEnv
-        frame_skip = unwrapped.frame_skip
         for _ in range(args.repeats):
             for name, model in models.items():
                 timers[name].reset()
@@ -199,7 +185,7 @@ def main() -> None:
                 row = {phase: timers[name].times.get(phase, 0.0) for phase in PHASES}
                 row.update(total=total, fisher_products=timers[name].fisher_products())
                 rows[name].append(row)
-            rows["raw_mj_step"].append({"total": raw_mujoco_time(env_id, samples * frame_skip, frame_skip)})
+            rows["raw_mj_step"].append({"total": time_mj_step(env_id, samples) * samples})  # `samples` env steps
         summary: dict[str, Any] = {}
         for name, name_rows in rows.items():
             summary[name] = {
