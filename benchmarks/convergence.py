@@ -123,6 +123,9 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # as the policy's std shrinks (a truer natural gradient?), and twice the updates per sample with plain TRPOPlus
     "plain_scripted25_cg25": ("trpo_plus", {**PLAIN, "cg_max_steps": 25}),
     "plain_scripted25_n500": ("trpo_plus", {**PLAIN, "n_steps": 500}),
+    # Grasper3D-v4, session 15: three natural-gradient steps per batch inside the one trust region, like PPO's many
+    # small steps (benchmarks/multistep.py; the class is MULTI_STEP's, the settings trpo_plus.yml's)
+    "plain_scripted25_ms3": ("trpo_plus", {**PLAIN, "n_policy_steps": 3}),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (
@@ -141,6 +144,7 @@ TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
     **{name: SCRIPTED25 for name in VARIANTS if f"_{SCRIPTED}" in name},
     "warm_scripted50": {"scripted_start_prob": 0.5},
 }
+MULTI_STEP = {"plain_scripted25_ms3"}  # variants trained by multistep.MultiStepTRPOPlus
 ZERO_CG_START = {"trpo_cg0"}  # variants whose sb3-contrib TRPO starts its conjugate gradient at 0
 STUDY_VARIANTS = list(STUDY)  # the default set of `run`
 CHUNKS = 25
@@ -214,7 +218,6 @@ def new_model(env_id: str, variant: str, seed: int, env: Any = None) -> Any:
     from stable_baselines3.common.vec_env import VecNormalize
 
     import grasp_envs  # noqa: F401
-    from sb3_trpo_plus.zoo import algorithms
 
     algo, overrides = VARIANTS[variant]
     params, n_envs, normalize, policy, env_kwargs = model_settings(algo, env_id, overrides)
@@ -222,7 +225,18 @@ def new_model(env_id: str, variant: str, seed: int, env: Any = None) -> Any:
         train_env_kwargs = training_env_kwargs(variant, env_kwargs)
         env = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=train_env_kwargs)
         env = VecNormalize(env, gamma=params.get("gamma", 0.99)) if normalize else env
-    return algorithms()[algo](policy, env, seed=seed, device="cpu", **params)
+    return algorithm_class(variant)(policy, env, seed=seed, device="cpu", **params)
+
+
+def algorithm_class(variant: str) -> Any:
+    """The class that trains ``variant``: its zoo algorithm's, or a probe's subclass of it."""
+    if variant in MULTI_STEP:
+        from multistep import MultiStepTRPOPlus  # benchmarks/ is on sys.path when this file runs as a script
+
+        return MultiStepTRPOPlus
+    from sb3_trpo_plus.zoo import algorithms
+
+    return algorithms()[VARIANTS[variant][0]]
 
 
 def _atomic_replace(write: Any, path: Path) -> None:
@@ -239,7 +253,6 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
     from stable_baselines3.common.vec_env import VecNormalize
 
     import grasp_envs  # noqa: F401
-    from sb3_trpo_plus.zoo import algorithms
 
     th.set_num_threads(1)
     if variant in ZERO_CG_START:
@@ -258,7 +271,7 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
         rows, done = [], 0
     algo, overrides = VARIANTS[variant]
     params, n_envs, normalize, policy, env_kwargs = model_settings(algo, env_id, overrides)
-    algo_class = algorithms()[algo]
+    algo_class = algorithm_class(variant)
     monitor = {"info_keywords": ("is_success",)}
     train_env_kwargs = training_env_kwargs(variant, env_kwargs)
     venv = make_vec_env(

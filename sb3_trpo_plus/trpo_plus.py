@@ -10,7 +10,7 @@ import random
 import tempfile
 import time
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
@@ -20,7 +20,7 @@ from gymnasium import spaces
 from sb3_contrib import TRPO
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.distributions import kl_divergence
+from stable_baselines3.common.distributions import Distribution, kl_divergence
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import explained_variance, obs_as_tensor
@@ -531,14 +531,41 @@ class TRPOPlus(TRPO):
         actions = self._action_tensor(batch.actions)
         distribution = self.policy.get_distribution(batch.observations)
         # Anchor of the KL constraint and of the Fisher matrix: the current policy on all states
-        old_distribution = detached_distribution(distribution)
-        log_prob = distribution.log_prob(actions)
-        weight_scale, ess = self._importance_weight_scale(log_prob.detach(), batch)
+        anchor = detached_distribution(distribution)
+        advantages, ess = self._step_advantages(batch, distribution.log_prob(actions).detach())
+        return self._natural_gradient_step(
+            batch, distribution, actions, advantages, anchor, self.target_kl, self._warm_start, ess
+        )
+
+    def _step_advantages(self, batch: PolicyBatch, log_prob: th.Tensor) -> tuple[th.Tensor, float]:
+        """The batch's advantages as the surrogate weighs them (normalised, replayed ones truncated) and the ESS."""
+        weight_scale, ess = self._importance_weight_scale(log_prob, batch)
         advantages = batch.advantages
         if self.normalize_advantage:
             advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
         if weight_scale is not None:
             advantages = advantages * weight_scale
+        return advantages, ess
+
+    def _natural_gradient_step(
+        self,
+        batch: PolicyBatch,
+        distribution: Distribution,
+        actions: th.Tensor,
+        advantages: th.Tensor,
+        anchor: Distribution,
+        step_kl: float,
+        warm_start: Callable[[th.Tensor], th.Tensor | None],
+        ess: float,
+    ) -> LineSearchResult:
+        """One natural-gradient step from the current parameters.
+
+        Gradient of the importance-weighted surrogate and Fisher matrix at ``distribution`` (the policy at the
+        current parameters, with its graph), CG started from ``warm_start(gradient)``, a full step of quadratic
+        KL ``step_kl``, and a line search that keeps the KL to ``anchor`` within ``target_kl``. Records the CG
+        statistics, and the step for the next update's warm start.
+        """
+        log_prob = distribution.log_prob(actions)
         objective = (advantages * th.exp(log_prob - batch.sampling_log_prob)).mean()
         gradient = flat_gradient(objective, self._actor_params, retain_graph=self.fisher_sub_sampling == 1)
         fisher_distribution = distribution
@@ -546,21 +573,19 @@ class TRPOPlus(TRPO):
             fisher_distribution = self.policy.get_distribution(batch.observations[:: self.fisher_sub_sampling])
         fvp = fisher_vector_product(fisher_distribution, self._actor_params, damping=self.cg_damping)
 
-        warm_start = self._warm_start(gradient)
+        start = warm_start(gradient)
         cg = conjugate_gradient(
-            fvp, gradient, x0=warm_start, max_iter=self.cg_max_steps, warm_start_rescale=self.cg_warm_start_rescale
+            fvp, gradient, x0=start, max_iter=self.cg_max_steps, warm_start_rescale=self.cg_warm_start_rescale
         )
         direction = cg.solution
         quadratic_form = cg.quadratic_form if cg.quadratic_form > 0 else float(th.dot(direction, fvp(direction)))
-        full_step = (
-            math.sqrt(2.0 * self.target_kl / quadratic_form) * direction if quadratic_form > 0 else direction * math.nan
-        )
+        full_step = math.sqrt(2.0 * step_kl / quadratic_form) * direction if quadratic_form > 0 else direction * math.nan
 
         def evaluate() -> tuple[float, float]:
             new_distribution = self.policy.get_distribution(batch.observations)
             new_log_prob = new_distribution.log_prob(actions)
             new_objective = (advantages * th.exp(new_log_prob - batch.sampling_log_prob)).mean()
-            kl = kl_divergence(new_distribution, old_distribution).mean()
+            kl = kl_divergence(new_distribution, anchor).mean()
             return float(new_objective), float(kl)
 
         result = backtracking_line_search(
@@ -574,7 +599,7 @@ class TRPOPlus(TRPO):
             "cg_relative_residual": cg.residual_norm / max(float(th.linalg.vector_norm(gradient)), 1e-12),
             "step_gradient_cosine": _cosine(gradient, direction),
             "fisher_products": cg.matvecs + (0 if cg.quadratic_form > 0 else 1),
-            "cg_warm_start_cosine": _cosine(warm_start, direction) if warm_start is not None else 0.0,
+            "cg_warm_start_cosine": _cosine(start, direction) if start is not None else 0.0,
             "objective_before": float(objective.detach()),
             "replay_ess": ess,
         }

@@ -1,0 +1,72 @@
+"""Several natural-gradient steps per batch: is that what makes SB3 PPO faster than TRPOPlus on the Grasper?
+
+A probe for benchmarks/convergence.py (variant ``plain_scripted25_ms3``), not a TRPOPlus option: on
+Grasper3D-v4 PPO's updates move the policy *less* than TRPOPlus' (KL 0.008 against 0.019 per state) yet it learns
+the lift about twice as fast, and neither a larger trust region, an exact CG solve, a smaller initial std nor
+PPO's critic step size closed the gap (docs/results.md). What is left of PPO's update is that it takes many small
+steps on each batch, every one from where the last one ended. ``MultiStepTRPOPlus`` does that within TRPO: each
+update takes ``n_policy_steps`` natural-gradient steps, each with the surrogate's gradient and the Fisher matrix
+re-evaluated at the parameters the previous step left (the surrogate's importance weights against the rollout's
+policy), each scaled to a quadratic KL of ``target_kl / n_policy_steps``, and every line search keeps the KL to
+the rollout's policy within ``target_kl``, so the update stays inside TRPO's trust region. With one step it is
+TRPOPlus (tests/test_multistep.py). The warm start, where on, starts the first step's CG from the last update.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.distributions import Distribution
+
+from sb3_trpo_plus import TRPOPlus
+from sb3_trpo_plus.natural_gradient import LineSearchResult, detached_distribution
+from sb3_trpo_plus.trpo_plus import PolicyBatch
+
+
+class MultiStepTRPOPlus(TRPOPlus):
+    """TRPOPlus taking ``n_policy_steps`` natural-gradient steps per update inside one trust region."""
+
+    def __init__(self, *args: Any, n_policy_steps: int = 3, **kwargs: Any) -> None:
+        if not isinstance(n_policy_steps, int) or isinstance(n_policy_steps, bool) or n_policy_steps < 1:
+            raise ValueError(f"n_policy_steps must be an integer >= 1, got {n_policy_steps!r}")
+        self.n_policy_steps = n_policy_steps
+        super().__init__(*args, **kwargs)
+
+    def _update_policy(self, batch: PolicyBatch) -> LineSearchResult:
+        actions = self._action_tensor(batch.actions)
+        distribution: Distribution = self.policy.get_distribution(batch.observations)
+        anchor = detached_distribution(distribution)  # the rollout's policy: the trust region's centre
+        advantages, ess = self._step_advantages(batch, distribution.log_prob(actions).detach())
+        step_kl = self.target_kl / self.n_policy_steps
+        results: list[LineSearchResult] = []
+        moved: np.ndarray | None = None
+        for step in range(self.n_policy_steps):
+            if step > 0:
+                distribution = self.policy.get_distribution(batch.observations)
+            warm_start = self._warm_start if step == 0 else _no_start
+            result = self._natural_gradient_step(batch, distribution, actions, advantages, anchor, step_kl, warm_start, ess)
+            results.append(result)
+            if not result.accepted:
+                break
+            assert self.previous_step is not None  # the step just taken
+            moved = self.previous_step if moved is None else moved + self.previous_step
+        accepted = [r for r in results if r.accepted]
+        # the warm start of the next update: the whole update's step, as TRPOPlus keeps its one step
+        self.previous_step = moved
+        self.logger.record("train/policy_steps", len(accepted))
+        last = accepted[-1] if accepted else results[-1]
+        return replace(
+            last,
+            accepted=bool(accepted),
+            steps=sum(r.steps for r in results),
+            nonfinite=any(r.nonfinite for r in results),
+            coefficient=float(np.mean([r.coefficient for r in results])),
+        )
+
+
+def _no_start(gradient: th.Tensor) -> None:
+    """CG from zero (the later steps of an update)."""
+    return None
