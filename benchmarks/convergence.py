@@ -126,6 +126,9 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # Grasper3D-v4, session 15: three natural-gradient steps per batch inside the one trust region, like PPO's many
     # small steps (benchmarks/multistep.py; the class is MULTI_STEP's, the settings trpo_plus.yml's)
     "plain_scripted25_ms3": ("trpo_plus", {**PLAIN, "n_policy_steps": 3}),
+    # ... which moved the policy twice as far per update (KL 0.009 against 0.0045) and learned slower, as target_kl
+    # 0.03 did; PPO's updates are the smallest (0.002 per action dimension): half the trust region
+    "plain_scripted25_kl005": ("trpo_plus", {**PLAIN, "target_kl": 0.005}),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (
