@@ -9,7 +9,8 @@ update takes ``n_policy_steps`` natural-gradient steps, each with the surrogate'
 re-evaluated at the parameters the previous step left (the surrogate's importance weights against the rollout's
 policy), each scaled to a quadratic KL of ``target_kl / n_policy_steps``, and every line search keeps the KL to
 the rollout's policy within ``target_kl``, so the update stays inside TRPO's trust region. With one step it is
-TRPOPlus (tests/test_multistep.py). The warm start, where on, starts the first step's CG from the last update.
+TRPOPlus (tests/test_multistep.py). The warm start, where on, starts the first step's CG from the last update's
+whole step. The logged KL, objective and policy std are the whole update's; the CG statistics are its last step's.
 """
 
 from __future__ import annotations
