@@ -1,7 +1,17 @@
 """Why does a Grasper run stop at the grasp? Probe a saved run of benchmarks/convergence.py.
 
     python benchmarks/grasper_probe.py --env Grasper3D-v4 --variant warm --seed 3 [--episodes 30]
+    python benchmarks/grasper_probe.py --env Grasper3D-v4 --variant plain_scripted25 --seed 2 --failures [--episodes 40]
 
+``--failures``: where and how the held-out episodes fail. Runs the deterministic policy on the study's
+held-out resets (reset seed 10,000 + episode, one seed per episode) in episodes twice the registered length
+(the policy has no clock, so its first steps are those of a registered episode) and the scripted grasp on the
+same resets. Prints, per bearing of the cube from the shoulder's axis (the arm starts stretched along +x, so a
+cube behind it is farther from the grip): how many episodes end lifted at the registered length, at 1.5 and 2
+times it, the median step of the first grasp, and how the others failed (never grasped, grasped but never
+lifted, lifted and lost).
+
+Without ``--failures``:
 Runs the saved policy (with its VecNormalize statistics) on seeded episodes (reset seed 30,000, not the
 study's held-out 10,000) three ways: as it is, and with the vertical grip command replaced by a constant
 (0.3, 0.6) from the first grasp until the cube is 7 cm up; every other action component stays the policy's.
@@ -14,23 +24,31 @@ risky for the policy's grip; the policy has simply not found it.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
+from convergence import algorithm_class  # benchmarks/ is on sys.path when this file runs as a script
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import grasp_envs  # noqa: F401
-from sb3_trpo_plus import TRPOPlus
+from grasp_envs.scripted import grasper3d_policy
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBE_SEED = 30_000
+HELD_OUT_SEED = 10_000  # benchmarks/convergence.py's EVAL_SEED
+SECTORS = (  # |bearing| ranges in degrees
+    (0.0, 60.0, "in front (bearing within ±60°)"),
+    (60.0, 120.0, "to the side (60-120°)"),
+    (120.0, 180.1, "behind (beyond ±120°)"),
+)
 RELEASE_HEIGHT = 0.07  # m: the forced command stops once the cube is this high
 
 
 def probe(
-    model: TRPOPlus, env: VecNormalize, episodes: int, deterministic: bool, forced_up: float | None
+    model: Any, env: VecNormalize, episodes: int, deterministic: bool, forced_up: float | None
 ) -> tuple[float, float, float]:
     """Mean return, final success and (deterministic, unforced) mean vertical action while grasped."""
     arm = env.venv.envs[0].unwrapped  # type: ignore[attr-defined]
@@ -55,19 +73,120 @@ def probe(
     return float(np.mean(returns)), float(np.mean(successes)), float(np.mean(vertical)) if vertical else float("nan")
 
 
+class Episode(NamedTuple):
+    bearing: float  # degrees of the cube from +x (the stretched start pose) about the shoulder's vertical axis
+    first_grasp: int | None  # step (1-based) of the first grasp
+    first_lift: int | None  # step of the first success
+    lifted_at: dict[int, bool]  # success at each checked step
+
+
+def trace(
+    obs: Any,
+    policy: Callable[[Any], Any],
+    step: Callable[[Any], tuple[Any, bool]],
+    arm: Any,
+    steps: int,
+    checks: Sequence[int],
+) -> Episode:
+    """Run ``steps`` steps from the reset that gave ``obs``; ``step(action)`` returns the next obs and success."""
+    cube = arm.data.geom("cube").xpos
+    bearing = float(np.degrees(np.arctan2(cube[1], cube[0])))
+    first_grasp = first_lift = None
+    lifted_at = {}
+    for t in range(1, steps + 1):
+        obs, success = step(policy(obs))
+        if first_grasp is None and arm._is_grasped(arm._contacts):
+            first_grasp = t
+        if first_lift is None and success:
+            first_lift = t
+        if t in checks:
+            lifted_at[t] = success
+    return Episode(bearing, first_grasp, first_lift, lifted_at)
+
+
+def outcome(episode: Episode, limit: int) -> str:
+    """How an episode of the registered length ``limit`` ended."""
+    if episode.lifted_at[limit]:
+        return "lifted"
+    if episode.first_lift is not None and episode.first_lift <= limit:
+        return "lifted and lost"
+    if episode.first_grasp is not None and episode.first_grasp <= limit:
+        return "grasped, not lifted"
+    return "never grasped"
+
+
+def failure_table(episodes: Sequence[Episode], limit: int) -> list[str]:
+    """Markdown rows: per bearing sector, success at 1, 1.5 and 2 times ``limit``, first grasp, failure kinds."""
+    rows = []
+    for low, high, name in (*SECTORS, (0.0, 180.1, "all")):
+        group = [e for e in episodes if low <= abs(e.bearing) < high]
+        if not group:
+            continue
+        rates = " / ".join(f"{np.mean([e.lifted_at[t] for e in group]):.2f}" for t in sorted(group[0].lifted_at))
+        grasps = [e.first_grasp for e in group if e.first_grasp is not None]
+        kinds = [outcome(e, limit) for e in group]
+        failures = ", ".join(
+            f"{kind} {kinds.count(kind)}" for kind in ("never grasped", "grasped, not lifted", "lifted and lost")
+        )
+        median = f"{np.median(grasps):.0f}" if grasps else "-"
+        rows.append(f"| {name} | {len(group)} | {rates} | {median} | {failures} |")
+    return rows
+
+
+def failures(model: Any, env_id: str, folder: Path, episodes: int) -> None:
+    """Print the ``--failures`` tables for the saved policy and for the scripted grasp."""
+    registered = gym.spec(env_id).max_episode_steps
+    assert registered is not None
+    steps, checks = 2 * registered, (registered, registered * 3 // 2, 2 * registered)
+    env = VecNormalize.load(str(folder / "vecnormalize.pkl"), DummyVecEnv([lambda: gym.make(env_id, max_episode_steps=steps)]))
+    env.training, env.norm_reward = False, False
+    arm = env.venv.envs[0].unwrapped  # type: ignore[attr-defined]
+    scripted_env = gym.make(env_id, max_episode_steps=steps)
+    scripted_arm = scripted_env.unwrapped
+
+    def learned_step(action: Any) -> tuple[Any, bool]:
+        obs, _, _, infos = env.step(action)
+        return obs, bool(infos[0]["is_success"])
+
+    def scripted_step(action: Any) -> tuple[Any, bool]:
+        return None, bool(scripted_env.step(action)[4]["is_success"])
+
+    def scripted_policy(_: Any) -> Any:
+        return grasper3d_policy(scripted_arm)  # type: ignore[arg-type]
+
+    learned, scripted = [], []
+    for episode in range(episodes):
+        env.seed(HELD_OUT_SEED + episode)
+        obs = env.reset()
+        learned.append(trace(obs, lambda o: model.predict(o, deterministic=True)[0], learned_step, arm, steps, checks))
+        scripted_env.reset(seed=HELD_OUT_SEED + episode)
+        scripted.append(trace(None, scripted_policy, scripted_step, scripted_arm, steps, checks))
+    header = " / ".join(str(t) for t in checks)
+    for name, group in (("the saved policy (deterministic)", learned), ("the scripted grasp", scripted)):
+        print(f"\n{name}, {episodes} held-out resets from seed {HELD_OUT_SEED}\n")
+        print(f"| cube | episodes | lifted at step {header} | median first grasp | failures at step {registered} |")
+        print("|---|---|---|---|---|")
+        print("\n".join(failure_table(group, registered)))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="Grasper3D-v4")
     parser.add_argument("--variant", default="warm")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--episodes", type=int, default=30)
+    parser.add_argument("--failures", action="store_true", help="where and how the held-out episodes fail")
     args = parser.parse_args()
     folder = ROOT / "benchmarks" / "results" / "convergence" / args.env / args.variant / f"seed{args.seed}"
     if not (folder / "model.zip").exists():
         raise SystemExit(f"{folder}: no model.zip (run benchmarks/convergence.py first; checkpoints are not committed)")
+    model = algorithm_class(args.variant).load(folder / "model.zip", device="cpu")
+    if args.failures:
+        print(f"{args.env} {args.variant} seed {args.seed}")
+        failures(model, args.env, folder, args.episodes)
+        return
     env = VecNormalize.load(str(folder / "vecnormalize.pkl"), DummyVecEnv([lambda: gym.make(args.env)]))
     env.training, env.norm_reward = False, False
-    model = TRPOPlus.load(folder / "model.zip", device="cpu")
     print(f"{args.env} {args.variant} seed {args.seed}, {args.episodes} episodes from reset seed {PROBE_SEED}\n")
     print("| policy | vertical command after the grasp | return | final success |")
     print("|---|---|---|---|")

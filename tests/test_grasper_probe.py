@@ -1,0 +1,62 @@
+"""benchmarks/grasper_probe.py --failures: how an episode is classified and counted."""
+
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+import grasp_envs  # noqa: F401  (registers the envs)
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from grasper_probe import Episode, failure_table, outcome, trace  # benchmarks/grasper_probe.py
+
+CHECKS = {100: False, 150: False, 200: False}
+
+
+def episode(bearing: float, grasp: int | None, lift: int | None, **lifted: bool) -> Episode:
+    return Episode(bearing, grasp, lift, {**CHECKS, **{int(k[1:]): v for k, v in lifted.items()}})
+
+
+def test_outcome_names_how_a_registered_episode_ended() -> None:
+    assert outcome(episode(0.0, 40, 50, t100=True), 100) == "lifted"
+    assert outcome(episode(0.0, 40, 50), 100) == "lifted and lost"
+    assert outcome(episode(0.0, 40, 120, t150=True), 100) == "grasped, not lifted"  # the lift came too late
+    assert outcome(episode(0.0, 130, 140, t150=True), 100) == "never grasped"  # so did the grasp
+    assert outcome(episode(0.0, None, None), 100) == "never grasped"
+
+
+def test_failure_table_groups_by_bearing_and_counts() -> None:
+    episodes = [
+        episode(10.0, 40, 50, t100=True, t150=True, t200=True),
+        episode(-50.0, 60, 90),  # lifted and lost
+        episode(90.0, 80, 120, t150=True, t200=True),  # too late at 100 steps
+        episode(-170.0, None, None),
+        episode(175.0, 70, 85, t100=True, t200=True),
+    ]
+    rows = failure_table(episodes, 100)
+    assert rows == [
+        "| in front (bearing within ±60°) | 2 | 0.50 / 0.50 / 0.50 | 50 "
+        "| never grasped 0, grasped, not lifted 0, lifted and lost 1 |",
+        "| to the side (60-120°) | 1 | 0.00 / 1.00 / 1.00 | 80 | never grasped 0, grasped, not lifted 1, lifted and lost 0 |",
+        "| behind (beyond ±120°) | 2 | 0.50 / 0.00 / 0.50 | 70 | never grasped 1, grasped, not lifted 0, lifted and lost 0 |",
+        "| all | 5 | 0.40 / 0.40 / 0.60 | 65 | never grasped 1, grasped, not lifted 1, lifted and lost 1 |",
+    ]
+
+
+def test_trace_follows_the_scripted_grasp_past_the_registered_length() -> None:
+    from grasp_envs.scripted import grasper3d_policy
+
+    env = gym.make("Grasper3D-v4", max_episode_steps=200)
+    env.reset(seed=10_005)
+    arm = env.unwrapped
+    cube = arm.data.geom("cube").xpos.copy()  # type: ignore[attr-defined]
+
+    def step(action: np.ndarray) -> tuple[None, bool]:
+        return None, bool(env.step(action)[4]["is_success"])
+
+    result = trace(None, lambda _: grasper3d_policy(arm), step, arm, 200, (100, 150, 200))  # type: ignore[arg-type]
+    assert result.bearing == np.degrees(np.arctan2(cube[1], cube[0]))
+    assert set(result.lifted_at) == {100, 150, 200}
+    assert result.first_grasp is not None and result.first_lift is not None  # the scripted grasp lifts this cube
+    assert result.first_grasp < result.first_lift
