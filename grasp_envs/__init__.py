@@ -17,6 +17,7 @@ from grasp_envs.grasper3d_v1 import Grasper3DEnv as Grasper3DEnvV1
 from grasp_envs.grasper3d_v2 import Grasper3DEnv as Grasper3DEnvV2
 from grasp_envs.grasper3d_v3 import Grasper3DEnv as Grasper3DEnvV3
 from grasp_envs.grasper3d_v4 import Grasper3DEnv as Grasper3DEnvV4
+from grasp_envs.grasper3d_v5 import Grasper3DEnv as Grasper3DEnvV5
 from grasp_envs.reacher2d_v0 import Reacher2DEnv
 from grasp_envs.reacher2d_v1 import Reacher2DEnv as Reacher2DEnvV1
 from grasp_envs.reacher3d_v0 import Reacher3DEnv
@@ -30,6 +31,7 @@ __all__ = [
     "Grasper3DEnvV2",
     "Grasper3DEnvV3",
     "Grasper3DEnvV4",
+    "Grasper3DEnvV5",
     "Reacher2DEnv",
     "Reacher2DEnvV1",
     "Reacher3DEnv",
@@ -52,6 +54,7 @@ _SPECS = {
     "Grasper3D-v2": ("grasp_envs.grasper3d_v2:Grasper3DEnv", 100, 210.0),
     "Grasper3D-v3": ("grasp_envs.grasper3d_v3:Grasper3DEnv", 100, 240.0),
     "Grasper3D-v4": ("grasp_envs.grasper3d_v4:Grasper3DEnv", 100, 250.0),
+    "Grasper3D-v5": ("grasp_envs.grasper3d_v5:Grasper3DEnv", 100, 250.0),  # v4's dynamics and reward
     "WallReacher3D-v0": ("grasp_envs.wall_reacher3d_v0:WallReacher3DEnv", 100, -45.0),
 }
 ENV_IDS = tuple(_SPECS)

@@ -91,4 +91,5 @@ SCRIPTED_POLICIES = {
     "Grasper3D-v2": grasper3d_policy,
     "Grasper3D-v3": grasper3d_policy,
     "Grasper3D-v4": grasper3d_policy,
+    "Grasper3D-v5": grasper3d_policy,
 }

@@ -5,6 +5,7 @@ import pickle
 import re
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
@@ -460,6 +461,41 @@ def test_grasper_v4_between_test_is_per_forearm_axis(
         np.testing.assert_allclose(env.cube_pos(), target, atol=1e-12)
         results[env_id] = env.cube_between_claws()
     assert results == {"Grasper3D-v3": v3_between, "Grasper3D-v4": v4_between}
+
+
+def test_grasper_v5_is_v4_observed_in_task_space() -> None:
+    """v5 = v4's dynamics, reward and success; its observation keeps v4's non-joint rows and replaces the joint
+    angles and velocities with the grip's velocity and the forearm's and claw hinge's directions."""
+    from grasp_envs import scripted
+    from grasp_envs.grasper3d_v5 import KEPT_V4_ROWS
+
+    v4, v5 = gym.make("Grasper3D-v4"), gym.make("Grasper3D-v5")
+    obs4, _ = v4.reset(seed=3)
+    obs5, _ = v5.reset(seed=3)
+    arm = v5.unwrapped
+    assert obs5.shape == v5.observation_space.shape == (26,)
+    grip = arm.data.site("grip").xpos.copy()  # type: ignore[attr-defined]
+    lifted = False
+    for _ in range(100):
+        action = scripted.grasper3d_policy(v4.unwrapped)  # type: ignore[arg-type]
+        obs4, reward4, *_, info4 = v4.step(action)
+        obs5, reward5, *_, info5 = v5.step(action)
+        assert reward5 == reward4 and info5 == info4
+        np.testing.assert_array_equal(obs5[9:], obs4[KEPT_V4_ROWS])
+        forearm = arm.data.body("forearm").xmat.reshape(3, 3)  # type: ignore[attr-defined]
+        np.testing.assert_allclose(obs5[3:9], np.r_[forearm[:, 0], forearm[:, 2]])
+        np.testing.assert_allclose(np.linalg.norm(obs5[3:6]), 1.0)
+        fresh = mujoco.MjData(arm.model)  # type: ignore[attr-defined]
+        fresh.qpos[:], fresh.qvel[:] = arm.data.qpos, arm.data.qvel  # type: ignore[attr-defined]
+        mujoco.mj_forward(arm.model, fresh)  # type: ignore[attr-defined]
+        velocity = np.zeros(6)
+        mujoco.mj_objectVelocity(arm.model, fresh, mujoco.mjtObj.mjOBJ_SITE, arm.model.site("grip").id, velocity, 0)  # type: ignore[attr-defined]
+        np.testing.assert_allclose(obs5[:3], velocity[3:], atol=2e-3)  # Jacobian before the step's last update
+        moved = arm.data.site("grip").xpos - grip  # type: ignore[attr-defined]
+        grip = arm.data.site("grip").xpos.copy()  # type: ignore[attr-defined]
+        assert np.dot(obs5[:3], moved) >= 0.0  # and it points the way the grip moved
+        lifted = lifted or info5["is_success"]
+    assert lifted  # the episode went through reach, grasp and lift
 
 
 def test_derived_docstring_refuses_a_lost_anchor() -> None:

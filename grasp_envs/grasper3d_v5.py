@@ -1,0 +1,92 @@
+"""Grasper3D-v5: Grasper3D-v4 that observes the task space only: the grip's velocity and the claw's orientation
+instead of the arm's joint angles and velocities."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+from grasp_envs import grasper3d_v4
+from grasp_envs.base import derived_docstring
+
+OBSERVATION_ROWS = """    | Num | Observation | Unit |
+    |-----|-------------|------|
+    | 0 | grip site velocity x | m/s |
+    | 1 | grip site velocity y | m/s |
+    | 2 | grip site velocity z | m/s |
+    | 3 | forearm axis x (unit vector from the elbow along the forearm; -z when it points down) | unitless |
+    | 4 | forearm axis y | unitless |
+    | 5 | forearm axis z | unitless |
+    | 6 | claw hinge axis x (unit vector; the halves close about it) | unitless |
+    | 7 | claw hinge axis y | unitless |
+    | 8 | claw hinge axis z | unitless |
+    | 9 | claw opening angle `claw_right` (negative is open) | rad |
+    | 10 | angular velocity of `claw_right` | rad/s |
+    | 11 | cube x | m |
+    | 12 | cube y | m |
+    | 13 | cube z | m |
+    | 14 | palm x - cube x | m |
+    | 15 | palm y - cube y | m |
+    | 16 | palm z - cube z | m |
+    | 17 | right claw x - cube x | m |
+    | 18 | right claw y - cube y | m |
+    | 19 | right claw z - cube z | m |
+    | 20 | left claw x - cube x | m |
+    | 21 | left claw y - cube y | m |
+    | 22 | left claw z - cube z | m |
+    | 23 | right claw half touches the cube | unitless |
+    | 24 | left claw half touches the cube | unitless |
+    | 25 | claw servo torque on `claw_right` (positive closes) | N m |"""
+# v4's rows kept by v5 (its rows 10, 16-31): everything that is not a joint angle or an arm joint velocity
+KEPT_V4_ROWS = np.r_[10, 16:32]
+
+
+def _v5_docstring(v4_doc: str) -> str:
+    """v4's docstring with v5's observation and version entry."""
+    start = v4_doc.index("    | Num | Observation | Unit |")
+    end = v4_doc.index("    | 31 | claw servo torque on `claw_right` (positive closes) | N m |")
+    v4_rows = v4_doc[start : v4_doc.index("\n", end)]
+    replacements = {
+        "## Description\n    Grasper3D-v3 (v2 with a reward for squeezing the grasped cube)": (
+            "## Description\n    Grasper3D-v4 observing the task space only (the grip's velocity and the claw's"
+            " orientation instead\n    of the arm's joint angles and velocities). Grasper3D-v3 (v2 with a reward for"
+            " squeezing the grasped cube)"
+        ),
+        "`Box(-inf, inf, (32,), float64)`:": "`Box(-inf, inf, (26,), float64)`:",
+        v4_rows: OBSERVATION_ROWS,
+    }
+    return derived_docstring(
+        v4_doc,
+        "Grasper3D-v4",
+        replacements,
+        "\n    * v5: the observation is the task space's, as the action already was: the grip's velocity and the"
+        "\n      forearm's and claw hinge's directions replace the arm's joint angles and velocities (Gymnasium"
+        "\n      Robotics' Fetch tasks observe no joints either); model, controller, reward, success and time limit are"
+        "\n      v4's. On v4, TRPOPlus seeds that lifted cubes in front of the arm reached cubes behind the shoulder"
+        "\n      and did not close the claw there: the arm reaches them in other joint configurations, which the"
+        "\n      joint-space observation makes look like a different task. Here two configurations that hold the"
+        "\n      claw in the same place look the same.\n    ",
+    )
+
+
+class Grasper3DEnv(grasper3d_v4.Grasper3DEnv):
+    __doc__ = _v5_docstring(grasper3d_v4.Grasper3DEnv.__doc__ or "")
+
+    observation_dim = 26  # v4's arguments and defaults: no __init__ of its own
+    _grip_site = -1  # set on first use: the base class builds the observation while it initialises
+    _grip_jacobian = np.zeros((3, 0))
+
+    def grip_velocity(self) -> NDArray[np.float64]:
+        """Linear velocity of the grip site in the world frame (m/s): its Jacobian times the joint velocities, as
+        Gymnasium Robotics' Fetch observes its grip (``qvel`` is the step's last; MuJoCo's own ``cvel`` lags it
+        by one physics step)."""
+        if self._grip_site < 0:
+            self._grip_site = int(self.model.site("grip").id)
+            self._grip_jacobian = np.zeros((3, self.model.nv))
+        mujoco.mj_jacSite(self.model, self.data, self._grip_jacobian, None, self._grip_site)
+        return self._grip_jacobian @ self.data.qvel
+
+    def _get_obs(self) -> NDArray[np.float64]:
+        forearm = self.data.body("forearm").xmat.reshape(3, 3)  # columns: x along the forearm, z the hinge axis
+        return np.concatenate([self.grip_velocity(), forearm[:, 0], forearm[:, 2], super()._get_obs()[KEPT_V4_ROWS]])
