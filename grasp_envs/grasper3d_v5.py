@@ -3,6 +3,8 @@ instead of the arm's joint angles and velocities."""
 
 from __future__ import annotations
 
+from functools import cached_property
+
 import mujoco
 import numpy as np
 from numpy.typing import NDArray
@@ -74,16 +76,19 @@ class Grasper3DEnv(grasper3d_v4.Grasper3DEnv):
     __doc__ = _v5_docstring(grasper3d_v4.Grasper3DEnv.__doc__ or "")
 
     observation_dim = 26  # v4's arguments and defaults: no __init__ of its own
-    _grip_site = -1  # set on first use: the base class builds the observation while it initialises
-    _grip_jacobian = np.zeros((3, 0))
+
+    @cached_property
+    def _grip_site(self) -> int:
+        return int(self.model.site("grip").id)
+
+    @cached_property
+    def _grip_jacobian(self) -> NDArray[np.float64]:  # made on first use: the base class observes while it initialises
+        return np.zeros((3, self.model.nv))
 
     def grip_velocity(self) -> NDArray[np.float64]:
         """Linear velocity of the grip site in the world frame (m/s): its Jacobian times the joint velocities, as
         Gymnasium Robotics' Fetch observes its grip (``qvel`` is the step's last; MuJoCo's own ``cvel`` lags it
         by one physics step)."""
-        if self._grip_site < 0:
-            self._grip_site = int(self.model.site("grip").id)
-            self._grip_jacobian = np.zeros((3, self.model.nv))
         mujoco.mj_jacSite(self.model, self.data, self._grip_jacobian, None, self._grip_site)
         return self._grip_jacobian @ self.data.qvel
 
