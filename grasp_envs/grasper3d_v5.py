@@ -3,6 +3,7 @@ instead of the arm's joint angles and velocities."""
 
 from __future__ import annotations
 
+import re
 from functools import cached_property
 
 import mujoco
@@ -12,43 +13,29 @@ from numpy.typing import NDArray
 from grasp_envs import grasper3d_v4
 from grasp_envs.base import derived_docstring
 
-OBSERVATION_ROWS = """    | Num | Observation | Unit |
-    |-----|-------------|------|
-    | 0 | grip site velocity x | m/s |
-    | 1 | grip site velocity y | m/s |
-    | 2 | grip site velocity z | m/s |
-    | 3 | forearm axis x (unit vector from the elbow along the forearm; -z when it points down) | unitless |
-    | 4 | forearm axis y | unitless |
-    | 5 | forearm axis z | unitless |
-    | 6 | claw hinge axis x (unit vector; the halves close about it) | unitless |
-    | 7 | claw hinge axis y | unitless |
-    | 8 | claw hinge axis z | unitless |
-    | 9 | claw opening angle `claw_right` (negative is open) | rad |
-    | 10 | angular velocity of `claw_right` | rad/s |
-    | 11 | cube x | m |
-    | 12 | cube y | m |
-    | 13 | cube z | m |
-    | 14 | palm x - cube x | m |
-    | 15 | palm y - cube y | m |
-    | 16 | palm z - cube z | m |
-    | 17 | right claw x - cube x | m |
-    | 18 | right claw y - cube y | m |
-    | 19 | right claw z - cube z | m |
-    | 20 | left claw x - cube x | m |
-    | 21 | left claw y - cube y | m |
-    | 22 | left claw z - cube z | m |
-    | 23 | right claw half touches the cube | unitless |
-    | 24 | left claw half touches the cube | unitless |
-    | 25 | claw servo torque on `claw_right` (positive closes) | N m |"""
 # v4's rows kept by v5 (its rows 10, 16-31): everything that is not a joint angle or an arm joint velocity
 KEPT_V4_ROWS = np.r_[10, 16:32]
+# the rows v5 puts before them (its rows 0-8)
+TASK_SPACE_ROWS = (
+    "grip site velocity x | m/s",
+    "grip site velocity y | m/s",
+    "grip site velocity z | m/s",
+    "forearm axis x (unit vector from the elbow along the forearm; -z when it points down) | unitless",
+    "forearm axis y | unitless",
+    "forearm axis z | unitless",
+    "claw hinge axis x (unit vector; the halves close about it) | unitless",
+    "claw hinge axis y | unitless",
+    "claw hinge axis z | unitless",
+)
 
 
 def _v5_docstring(v4_doc: str) -> str:
     """v4's docstring with v5's observation and version entry."""
-    start = v4_doc.index("    | Num | Observation | Unit |")
-    end = v4_doc.index("    | 31 | claw servo torque on `claw_right` (positive closes) | N m |")
-    v4_rows = v4_doc[start : v4_doc.index("\n", end)]
+    header = "    | Num | Observation | Unit |\n    |-----|-------------|------|\n"
+    v4_table = v4_doc[v4_doc.index(header) : v4_doc.index("\n\n", v4_doc.index(header))]
+    v4_rows = dict(re.findall(r"^    \| (\d+) \| (.+) \|$", v4_table, flags=re.MULTILINE))
+    rows = [*TASK_SPACE_ROWS, *(v4_rows[str(row)] for row in KEPT_V4_ROWS)]
+    v5_table = header + "\n".join(f"    | {number} | {row} |" for number, row in enumerate(rows))
     replacements = {
         "## Description\n    Grasper3D-v3 (v2 with a reward for squeezing the grasped cube)": (
             "## Description\n    Grasper3D-v4 observing the task space only (the grip's velocity and the claw's"
@@ -56,7 +43,7 @@ def _v5_docstring(v4_doc: str) -> str:
             " squeezing the grasped cube)"
         ),
         "`Box(-inf, inf, (32,), float64)`:": "`Box(-inf, inf, (26,), float64)`:",
-        v4_rows: OBSERVATION_ROWS,
+        v4_table: v5_table,
     }
     return derived_docstring(
         v4_doc,
