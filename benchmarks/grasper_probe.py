@@ -3,8 +3,9 @@
     python benchmarks/grasper_probe.py --env Grasper3D-v4 --variant warm --seed 3 [--episodes 30]
     python benchmarks/grasper_probe.py --env Grasper3D-v4 --variant plain_scripted25 --seed 2 --failures [--episodes 40]
 
-``--failures``: where and how the held-out episodes fail. Runs the deterministic policy on the study's
-held-out resets (reset seed 10,000 + episode, one seed per episode) in episodes twice the registered length
+``--failures``: where and how the held-out episodes fail. Runs the deterministic policy on held-out resets
+seeded 10,000 + episode (the study's evaluation seeds only its first reset with 10,000 and lets the env's generator
+draw the others, so these are its first episode and then others of the same kind) in episodes twice the registered length
 (the policy has no clock, so its first steps are those of a registered episode) and the scripted grasp on the
 same resets. Prints, per bearing of the cube from the shoulder's axis (the arm starts stretched along +x, so a
 cube behind it is farther from the grip): how many episodes end lifted at the registered length, at 1.5 and 2
@@ -38,7 +39,7 @@ from grasp_envs.scripted import grasper3d_policy
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBE_SEED = 30_000
-HELD_OUT_SEED = 10_000  # benchmarks/convergence.py's EVAL_SEED
+HELD_OUT_SEED = 10_000  # benchmarks/convergence.py's EVAL_SEED: far from the training envs' seeds
 SECTORS = (  # |bearing| ranges in degrees
     (0.0, 60.0, "in front (bearing within ±60°)"),
     (60.0, 120.0, "to the side (60-120°)"),
