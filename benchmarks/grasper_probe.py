@@ -48,6 +48,13 @@ SECTORS = (  # |bearing| ranges in degrees
 RELEASE_HEIGHT = 0.07  # m: the forced command stops once the cube is this high
 
 
+def saved_env(folder: Path, env_id: str, **make_kwargs: Any) -> VecNormalize:
+    """One ``env_id`` env with the run's frozen VecNormalize statistics (observations normalised, rewards raw)."""
+    env = VecNormalize.load(str(folder / "vecnormalize.pkl"), DummyVecEnv([lambda: gym.make(env_id, **make_kwargs)]))
+    env.training, env.norm_reward = False, False
+    return env
+
+
 def probe(
     model: Any, env: VecNormalize, episodes: int, deterministic: bool, forced_up: float | None
 ) -> tuple[float, float, float]:
@@ -139,8 +146,7 @@ def failures(model: Any, env_id: str, folder: Path, episodes: int) -> None:
     registered = gym.spec(env_id).max_episode_steps
     assert registered is not None
     steps, checks = 2 * registered, (registered, registered * 3 // 2, 2 * registered)
-    env = VecNormalize.load(str(folder / "vecnormalize.pkl"), DummyVecEnv([lambda: gym.make(env_id, max_episode_steps=steps)]))
-    env.training, env.norm_reward = False, False
+    env = saved_env(folder, env_id, max_episode_steps=steps)
     arm = env.venv.envs[0].unwrapped  # type: ignore[attr-defined]
     scripted_env = gym.make(env_id, max_episode_steps=steps)
     scripted_arm = scripted_env.unwrapped
@@ -186,8 +192,7 @@ def main() -> None:
         print(f"{args.env} {args.variant} seed {args.seed}")
         failures(model, args.env, folder, args.episodes)
         return
-    env = VecNormalize.load(str(folder / "vecnormalize.pkl"), DummyVecEnv([lambda: gym.make(args.env)]))
-    env.training, env.norm_reward = False, False
+    env = saved_env(folder, args.env)
     print(f"{args.env} {args.variant} seed {args.seed}, {args.episodes} episodes from reset seed {PROBE_SEED}\n")
     print("| policy | vertical command after the grasp | return | final success |")
     print("|---|---|---|---|")
