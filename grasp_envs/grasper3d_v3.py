@@ -16,7 +16,7 @@ from grasp_envs.scripted import grasper3d_policy
 # seeded episodes, median torque while grasped): command 0.42 gives 0.21 N m, 0.5 gives 0.29, 0.7 gives 0.51, 1.0
 # gives 0.78; the halves first touch the cube at a command of about 0.375.
 SQUEEZE_TORQUE = 0.5
-SCRIPTED_START_STEPS = 100  # a scripted start runs the scripted grasp for 0-99 steps (it grasps at steps 53-86)
+SCRIPTED_START_STEPS = (0, 100)  # a scripted start runs the scripted grasp for 0-99 steps (it grasps at steps 53-86)
 
 
 def _v3_docstring(v2_doc: str) -> str:
@@ -43,6 +43,8 @@ def _v3_docstring(v2_doc: str) -> str:
             "    | `squeeze_torque` | `0.5` | claw servo torque at which `reward_squeeze` saturates (N m) |\n"
             "    | `scripted_start_prob` | `0.0` | probability that a reset goes on with the scripted grasp for a uniform"
             " 0-99 steps, so the episode starts somewhere along a demonstration (a training aid; evaluate with 0) |\n"
+            "    | `scripted_start_steps` | `(0, 100)` | the range `[low, high)` of that uniform number of scripted steps"
+            " (e.g. `(50, 100)` starts around the grasp and the lift) |\n"
         ),
     }
     return derived_docstring(
@@ -81,12 +83,16 @@ class Grasper3DEnv(grasper3d_v2.Grasper3DEnv):
         reward_squeeze_weight: float = 2.0,
         squeeze_torque: float = SQUEEZE_TORQUE,
         scripted_start_prob: float = 0.0,
+        scripted_start_steps: tuple[int, int] = SCRIPTED_START_STEPS,
         **kwargs: Any,
     ):
         if not squeeze_torque > 0:
             raise ValueError(f"squeeze_torque must be positive, got {squeeze_torque!r}")
         if not 0.0 <= scripted_start_prob <= 1.0:
             raise ValueError(f"scripted_start_prob must be in [0, 1], got {scripted_start_prob!r}")
+        low, high = scripted_start_steps
+        if not 0 <= low < high:
+            raise ValueError(f"scripted_start_steps must be (low, high) with 0 <= low < high, got {scripted_start_steps!r}")
         super().__init__(
             xml_file, frame_skip, default_camera_config, reward_mode, reward_reach_weight, reward_grasp_weight,
             reward_lift_weight, reward_hold_weight, reward_control_weight, terminate_on_success, reset_noise_scale,
@@ -96,9 +102,10 @@ class Grasper3DEnv(grasper3d_v2.Grasper3DEnv):
             self, xml_file, frame_skip, default_camera_config, reward_mode, reward_reach_weight, reward_grasp_weight,
             reward_lift_weight, reward_hold_weight, reward_control_weight, terminate_on_success, reset_noise_scale,
             lift_height, reward_floor_weight, max_grip_speed, claw_rate, reward_squeeze_weight, squeeze_torque,
-            scripted_start_prob, **kwargs,
+            scripted_start_prob, scripted_start_steps, **kwargs,
         )  # fmt: skip
         self._scripted_start_prob = float(scripted_start_prob)
+        self._scripted_start_steps = (int(low), int(high))
         self._reward_squeeze_weight = reward_squeeze_weight
         self._squeeze_torque = float(squeeze_torque)
         self._claw_actuator = int(self.model.actuator("claw").id)
@@ -122,7 +129,7 @@ class Grasper3DEnv(grasper3d_v2.Grasper3DEnv):
         observation = super().reset_model()
         # random numbers are drawn only when the option is on, so default resets stay v3's
         if self._scripted_start_prob > 0 and self.np_random.uniform() < self._scripted_start_prob:
-            for _ in range(int(self.np_random.integers(SCRIPTED_START_STEPS))):
+            for _ in range(int(self.np_random.integers(*self._scripted_start_steps))):
                 if self._simulate(self._checked_action(grasper3d_policy(self))):  # unstable: start from scratch
                     return super().reset_model()
             observation = self._get_obs()
