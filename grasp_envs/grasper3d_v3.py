@@ -90,9 +90,10 @@ class Grasper3DEnv(grasper3d_v2.Grasper3DEnv):
             raise ValueError(f"squeeze_torque must be positive, got {squeeze_torque!r}")
         if not 0.0 <= scripted_start_prob <= 1.0:
             raise ValueError(f"scripted_start_prob must be in [0, 1], got {scripted_start_prob!r}")
-        low, high = scripted_start_steps
-        if not 0 <= low < high:
+        steps = tuple(scripted_start_steps) if isinstance(scripted_start_steps, (tuple, list)) else ()
+        if not (len(steps) == 2 and all(isinstance(n, (int, np.integer)) for n in steps) and 0 <= steps[0] < steps[1]):
             raise ValueError(f"scripted_start_steps must be (low, high) with 0 <= low < high, got {scripted_start_steps!r}")
+        low, high = steps
         super().__init__(
             xml_file, frame_skip, default_camera_config, reward_mode, reward_reach_weight, reward_grasp_weight,
             reward_lift_weight, reward_hold_weight, reward_control_weight, terminate_on_success, reset_noise_scale,

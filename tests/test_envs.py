@@ -418,7 +418,7 @@ def test_grasper_scripted_start_steps_choose_the_phase() -> None:
     for _ in range(30):
         by_hand.step(grasper3d_policy(by_hand))
     np.testing.assert_allclose(observation, by_hand._get_obs())
-    for bad in [(5, 5), (-1, 10), (10, 3)]:
+    for bad in [(5, 5), (-1, 10), (10, 3), 100, (50,), (50.5, 100)]:
         with pytest.raises(ValueError, match="scripted_start_steps"):
             gym.make("Grasper3D-v4", scripted_start_steps=bad)
 
