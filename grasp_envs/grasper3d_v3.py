@@ -42,8 +42,9 @@ def _v3_docstring(v2_doc: str) -> str:
             "    | `reward_squeeze_weight` | `2.0` | weight of `reward_squeeze` (staged) |\n"
             "    | `squeeze_torque` | `0.5` | claw servo torque at which `reward_squeeze` saturates (N m) |\n"
             "    | `scripted_start_prob` | `0.0` | probability that a reset goes on with the scripted grasp for a uniform"
-            " 0-99 steps, so the episode starts somewhere along a demonstration (a training aid; evaluate with 0) |\n"
-            "    | `scripted_start_steps` | `(0, 100)` | the range `[low, high)` of that uniform number of scripted steps"
+            " number of steps (`scripted_start_steps`), so the episode starts somewhere along a demonstration (a"
+            " training aid; evaluate with 0) |\n"
+            "    | `scripted_start_steps` | `(0, 100)` | the range `[low, high)` of that number of scripted steps"
             " (e.g. `(50, 100)` starts around the grasp and the lift) |\n"
         ),
     }
