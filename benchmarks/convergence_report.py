@@ -56,6 +56,7 @@ LABELS = {
     "plain_scripted25_ms3": "TRPOPlus plain, 25 % scripted starts, 3 natural-gradient steps per update",
     "plain_scripted25_kl005": "TRPOPlus plain, 25 % scripted starts, target_kl 0.005",
     "plain_scripted25_late": "TRPOPlus plain, 25 % scripted starts 50-99 steps along the grasp",
+    "plain_scripted25_late_std06": "TRPOPlus plain, 25 % scripted starts 50-99 steps along, initial std 0.61",
     "warm_scripted25_vf3e4": "TRPOPlus + warm start, 25 % scripted starts, critic step size 3e-4",
     "ppo_scripted25_e1": "SB3 PPO, 25 % scripted starts, 1 epoch per batch",
     "warm_sde": "TRPOPlus + warm start, gSDE",
