@@ -150,7 +150,8 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     ),
 }
 # variants that change the training envs only (the evaluation envs keep the YAML's env_kwargs): every variant
-# named <...>_scripted25<...> starts a quarter of its training episodes along the scripted grasp
+# named <...>_scripted25<...> starts a quarter of its training episodes along the scripted grasp (those named
+# <...>_scripted25_late<...> 50-99 steps along it)
 TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
     **{name: SCRIPTED25 for name in VARIANTS if f"_{SCRIPTED}" in name},
     "warm_scripted50": {"scripted_start_prob": 0.5},
