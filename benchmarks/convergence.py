@@ -137,6 +137,12 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # Grasper3D-v5, session 18: the late starts with the smaller initial action std (0.61) that brought the first
     # lifts earlier on v4 (warm_scripted25_std06): the two settings that each helped, together
     "plain_scripted25_late_std06": ("trpo_plus", {**PLAIN, "policy_kwargs": {"log_std_init": -0.5}}),
+    # Grasper3D-v5, session 19 (a 16-core machine lent for half an hour, 16 runs at once): is the algorithm the limit
+    # (PPO with the same late starts), the policy's size (two layers of 256 instead of the thesis' 100), or the share
+    # of late starts (half of the training resets instead of a quarter)?
+    "ppo_scripted25_late": ("ppo", {}),
+    "plain_scripted25_late_net256": ("trpo_plus", {**PLAIN, "policy_kwargs": {"net_arch": [256, 256]}}),
+    "plain_scripted50_late": ("trpo_plus", PLAIN),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (
@@ -156,6 +162,7 @@ TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
     **{name: SCRIPTED25 for name in VARIANTS if f"_{SCRIPTED}" in name},
     "warm_scripted50": {"scripted_start_prob": 0.5},
     **{name: {**SCRIPTED25, "scripted_start_steps": (50, 100)} for name in VARIANTS if "_scripted25_late" in name},
+    "plain_scripted50_late": {"scripted_start_prob": 0.5, "scripted_start_steps": (50, 100)},
 }
 MULTI_STEP = {"plain_scripted25_ms3"}  # variants trained by multistep.MultiStepTRPOPlus
 ZERO_CG_START = {"trpo_cg0"}  # variants whose sb3-contrib TRPO starts its conjugate gradient at 0
