@@ -141,6 +141,8 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # (PPO with the same late starts), the policy's size (two layers of 256 instead of the thesis' 100), or the share
     # of late starts (half of the training resets instead of a quarter)?
     "ppo_scripted25_late": ("ppo", {}),
+    # ... and sb3-contrib TRPO with the same starts: is the gap to PPO TRPO's, or TRPOPlus' own?
+    "trpo_scripted25_late": ("trpo", {}),
     "plain_scripted25_late_net256": ("trpo_plus", {**PLAIN, "policy_kwargs": {"net_arch": [256, 256]}}),
     "plain_scripted50_late": ("trpo_plus", PLAIN),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix

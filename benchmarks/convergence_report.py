@@ -58,6 +58,7 @@ LABELS = {
     "plain_scripted25_late": "TRPOPlus plain, 25 % scripted starts 50-99 steps along the grasp",
     "plain_scripted25_late_std06": "TRPOPlus plain, 25 % scripted starts 50-99 steps along, initial std 0.61",
     "ppo_scripted25_late": "SB3 PPO, 25 % scripted starts 50-99 steps along the grasp",
+    "trpo_scripted25_late": "sb3-contrib TRPO, 25 % scripted starts 50-99 steps along the grasp",
     "plain_scripted25_late_net256": "TRPOPlus plain, 25 % scripted starts 50-99 steps along, 256 x 256 policy",
     "plain_scripted50_late": "TRPOPlus plain, 50 % scripted starts 50-99 steps along the grasp",
     "warm_scripted25_vf3e4": "TRPOPlus + warm start, 25 % scripted starts, critic step size 3e-4",
