@@ -131,18 +131,16 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # ... which moved the policy twice as far per update (KL 0.009 against 0.0045) and learned slower, as target_kl
     # 0.03 did; PPO's updates are the smallest (0.002 per action dimension): half the trust region
     "plain_scripted25_kl005": ("trpo_plus", {**PLAIN, "target_kl": 0.005}),
-    # Grasper3D-v5, session 17: v5 grasps almost every cube and then fails to lift (docs/benchmarks.md); the same
-    # quarter of scripted starts, each 50-99 steps along the scripted grasp (62 % start grasped instead of 26 %)
-    "plain_scripted25_late": ("trpo_plus", PLAIN),
+    # Grasper3D-v5, session 17: v5 grasps almost every cube and then fails to lift (docs/benchmarks.md); the six
+    # above with the same quarter of scripted starts, each 50-99 steps along the scripted grasp (62 % start grasped
+    # instead of 26 %); run so far: plain (session 17), PPO and sb3-contrib TRPO (session 19)
+    **{f"{name}_{SCRIPTED}_late": (algo, overrides) for name, (algo, overrides) in STUDY.items()},
     # Grasper3D-v5, session 18: the late starts with the smaller initial action std (0.61) that brought the first
     # lifts earlier on v4 (warm_scripted25_std06): the two settings that each helped, together
     "plain_scripted25_late_std06": ("trpo_plus", {**PLAIN, "policy_kwargs": {"log_std_init": -0.5}}),
     # Grasper3D-v5, session 19 (a 16-core machine lent for half an hour, 16 runs at once): is the algorithm the limit
-    # (PPO with the same late starts), the policy's size (two layers of 256 instead of the thesis' 100), or the share
-    # of late starts (half of the training resets instead of a quarter)?
-    "ppo_scripted25_late": ("ppo", {}),
-    # ... and sb3-contrib TRPO with the same starts: is the gap to PPO TRPO's, or TRPOPlus' own?
-    "trpo_scripted25_late": ("trpo", {}),
+    # (ppo_ and trpo_scripted25_late above), the policy's size (two layers of 256 instead of the thesis' 100), or the
+    # share of late starts (half of the training resets instead of a quarter)?
     "plain_scripted25_late_net256": ("trpo_plus", {**PLAIN, "policy_kwargs": {"net_arch": [256, 256]}}),
     "plain_scripted50_late": ("trpo_plus", PLAIN),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix

@@ -55,10 +55,7 @@ LABELS = {
     "plain_scripted25_n500": "TRPOPlus plain, 25 % scripted starts, 5,000 samples per update",
     "plain_scripted25_ms3": "TRPOPlus plain, 25 % scripted starts, 3 natural-gradient steps per update",
     "plain_scripted25_kl005": "TRPOPlus plain, 25 % scripted starts, target_kl 0.005",
-    "plain_scripted25_late": "TRPOPlus plain, 25 % scripted starts 50-99 steps along the grasp",
     "plain_scripted25_late_std06": "TRPOPlus plain, 25 % scripted starts 50-99 steps along, initial std 0.61",
-    "ppo_scripted25_late": "SB3 PPO, 25 % scripted starts 50-99 steps along the grasp",
-    "trpo_scripted25_late": "sb3-contrib TRPO, 25 % scripted starts 50-99 steps along the grasp",
     "plain_scripted25_late_net256": "TRPOPlus plain, 25 % scripted starts 50-99 steps along, 256 x 256 policy",
     "plain_scripted50_late": "TRPOPlus plain, 50 % scripted starts 50-99 steps along the grasp",
     "warm_scripted25_vf3e4": "TRPOPlus + warm start, 25 % scripted starts, critic step size 3e-4",
@@ -73,6 +70,9 @@ LABELS.update(
     }
 )
 LABELS.update({f"{name}_{SCRIPTED}": f"{LABELS[name]}, 25 % scripted starts" for name in STUDY_VARIANTS})
+LABELS.update(
+    {f"{name}_{SCRIPTED}_late": f"{LABELS[name]}, 25 % scripted starts 50-99 steps along the grasp" for name in STUDY_VARIANTS}
+)
 # why does the combination hurt? each diagnosis variant against the variant it changes (docs/results.md)
 # and is plain TRPOPlus better than sb3-contrib TRPO, or than the same algorithm with another random stream?
 # (all of these ran on Reacher2D-v1 with gamma 0.99); and the discount the YAML took in session 11 against 0.99
