@@ -132,8 +132,8 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # 0.03 did; PPO's updates are the smallest (0.002 per action dimension): half the trust region
     "plain_scripted25_kl005": ("trpo_plus", {**PLAIN, "target_kl": 0.005}),
     # Grasper3D-v5, session 17: v5 grasps almost every cube and then fails to lift (docs/benchmarks.md); the six
-    # above with the same quarter of scripted starts, each 50-99 steps along the scripted grasp (62 % start grasped
-    # instead of 26 %); run so far: plain (session 17), PPO and sb3-contrib TRPO (session 19)
+    # study variants (STUDY) with the same quarter of scripted starts, each 50-99 steps along the scripted grasp
+    # (62 % start grasped instead of 26 %); run so far: plain (session 17), PPO and sb3-contrib TRPO (session 19)
     **{f"{name}_{SCRIPTED}_late": (algo, overrides) for name, (algo, overrides) in STUDY.items()},
     # Grasper3D-v5, session 18: the late starts with the smaller initial action std (0.61) that brought the first
     # lifts earlier on v4 (warm_scripted25_std06): the two settings that each helped, together
