@@ -73,6 +73,9 @@ LABELS.update({f"{name}_{SCRIPTED}": f"{LABELS[name]}, 25 % scripted starts" for
 LABELS.update(
     {f"{name}_{SCRIPTED}_late": f"{LABELS[name]}, 25 % scripted starts 50-99 steps along the grasp" for name in STUDY_VARIANTS}
 )
+LABELS.update(
+    {f"{name}_{SCRIPTED}_late_hold": f"{LABELS[name]}, 25 % late scripted starts, the cube held 7 cm up" for name in STUDY_VARIANTS}
+)
 # why does the combination hurt? each diagnosis variant against the variant it changes (docs/results.md)
 # and is plain TRPOPlus better than sb3-contrib TRPO, or than the same algorithm with another random stream?
 # (all of these ran on Reacher2D-v1 with gamma 0.99); and the discount the YAML took in session 11 against 0.99

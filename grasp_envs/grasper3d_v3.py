@@ -46,6 +46,8 @@ def _v3_docstring(v2_doc: str) -> str:
             " training aid; evaluate with 0) |\n"
             "    | `scripted_start_steps` | `(0, 100)` | the range `[low, high)` of that number of scripted steps"
             " (e.g. `(50, 100)` starts around the grasp and the lift) |\n"
+            "    | `scripted_start_hold_height` | `None` | where the scripted grasp of those starts holds the cube (height"
+            " of its bottom, m); `None` keeps raising it until the arm runs out of reach, where it often slips out |\n"
         ),
     }
     return derived_docstring(
@@ -85,6 +87,7 @@ class Grasper3DEnv(grasper3d_v2.Grasper3DEnv):
         squeeze_torque: float = SQUEEZE_TORQUE,
         scripted_start_prob: float = 0.0,
         scripted_start_steps: tuple[int, int] = SCRIPTED_START_STEPS,
+        scripted_start_hold_height: float | None = None,
         **kwargs: Any,
     ):
         if not squeeze_torque > 0:
@@ -95,6 +98,8 @@ class Grasper3DEnv(grasper3d_v2.Grasper3DEnv):
         if not (len(steps) == 2 and all(isinstance(n, (int, np.integer)) for n in steps) and 0 <= steps[0] < steps[1]):
             raise ValueError(f"scripted_start_steps must be (low, high) with 0 <= low < high, got {scripted_start_steps!r}")
         low, high = steps
+        if scripted_start_hold_height is not None and not scripted_start_hold_height > 0:
+            raise ValueError(f"scripted_start_hold_height must be None or positive, got {scripted_start_hold_height!r}")
         super().__init__(
             xml_file, frame_skip, default_camera_config, reward_mode, reward_reach_weight, reward_grasp_weight,
             reward_lift_weight, reward_hold_weight, reward_control_weight, terminate_on_success, reset_noise_scale,
@@ -104,10 +109,11 @@ class Grasper3DEnv(grasper3d_v2.Grasper3DEnv):
             self, xml_file, frame_skip, default_camera_config, reward_mode, reward_reach_weight, reward_grasp_weight,
             reward_lift_weight, reward_hold_weight, reward_control_weight, terminate_on_success, reset_noise_scale,
             lift_height, reward_floor_weight, max_grip_speed, claw_rate, reward_squeeze_weight, squeeze_torque,
-            scripted_start_prob, scripted_start_steps, **kwargs,
+            scripted_start_prob, scripted_start_steps, scripted_start_hold_height, **kwargs,
         )  # fmt: skip
         self._scripted_start_prob = float(scripted_start_prob)
         self._scripted_start_steps = (int(low), int(high))
+        self._scripted_start_hold_height = scripted_start_hold_height
         self._reward_squeeze_weight = reward_squeeze_weight
         self._squeeze_torque = float(squeeze_torque)
         self._claw_actuator = int(self.model.actuator("claw").id)
@@ -132,7 +138,8 @@ class Grasper3DEnv(grasper3d_v2.Grasper3DEnv):
         # random numbers are drawn only when the option is on, so default resets stay v3's
         if self._scripted_start_prob > 0 and self.np_random.uniform() < self._scripted_start_prob:
             for _ in range(int(self.np_random.integers(*self._scripted_start_steps))):
-                if self._simulate(self._checked_action(grasper3d_policy(self))):  # unstable: start from scratch
+                action = grasper3d_policy(self, hold_height=self._scripted_start_hold_height)
+                if self._simulate(self._checked_action(action)):  # unstable: start from scratch
                     return super().reset_model()
             observation = self._get_obs()
         return observation
