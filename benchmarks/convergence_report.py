@@ -74,7 +74,10 @@ LABELS.update(
     {f"{name}_{SCRIPTED}_late": f"{LABELS[name]}, 25 % scripted starts 50-99 steps along the grasp" for name in STUDY_VARIANTS}
 )
 LABELS.update(
-    {f"{name}_{SCRIPTED}_late_hold": f"{LABELS[name]}, 25 % late scripted starts, the cube held 7 cm up" for name in STUDY_VARIANTS}
+    {
+        f"{name}_{SCRIPTED}_late_hold": f"{LABELS[name]}, 25 % late scripted starts, the cube held 7 cm up"
+        for name in STUDY_VARIANTS
+    }
 )
 # why does the combination hurt? each diagnosis variant against the variant it changes (docs/results.md)
 # and is plain TRPOPlus better than sb3-contrib TRPO, or than the same algorithm with another random stream?
