@@ -65,6 +65,7 @@ WARM: dict[str, Any] = {"replay_memory": 0, "cg_warm_start": True}
 BOTH: dict[str, Any] = {"replay_memory": 3, "cg_warm_start": True}
 SCRIPTED, SCRIPTED25 = "scripted25", {"scripted_start_prob": 0.25}  # a quarter of the training resets along the scripted grasp
 SCRIPTED25_LATE = {**SCRIPTED25, "scripted_start_steps": (50, 100)}  # ... each 50-99 steps along it
+HOLD_HEIGHT = 0.07  # m: where the scripted grasp of the <...>_hold variants holds the cube (its bottom)
 # Discounts the YAML had before it took gamma 0.98: Reacher2D-v1 ran with v0's 0.99 until session 11, WallReacher3D-v0
 # with the thesis' 0.995 until session 12. The rows recorded before keep their discount through the variants
 # <study variant>_<suffix> and the Reacher2D-v1-only variants that set G099 (docs/results.md)
@@ -168,7 +169,7 @@ TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
     "warm_scripted50": {"scripted_start_prob": 0.5},
     **{name: SCRIPTED25_LATE for name in VARIANTS if "_scripted25_late" in name},
     "plain_scripted50_late": {"scripted_start_prob": 0.5, "scripted_start_steps": (50, 100)},
-    **{name: {**SCRIPTED25_LATE, "scripted_start_hold_height": 0.07} for name in VARIANTS if name.endswith("_hold")},
+    **{name: {**SCRIPTED25_LATE, "scripted_start_hold_height": HOLD_HEIGHT} for name in VARIANTS if name.endswith("_hold")},
 }
 MULTI_STEP = {"plain_scripted25_ms3"}  # variants trained by multistep.MultiStepTRPOPlus
 ZERO_CG_START = {"trpo_cg0"}  # variants whose sb3-contrib TRPO starts its conjugate gradient at 0

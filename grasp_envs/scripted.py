@@ -66,8 +66,13 @@ def grasper3d_policy(env: ArmEnv, lift: bool = True, hold_height: float | None =
     # forearm), at its centre in v1 (0.155 m)
     low = cube + np.array([0.0, 0.0, 0.155 - model.site("grip").pos[0]])
     if holding and claw_angle > -0.5:
-        rise = 0.0 if not lift else 0.12 if hold_height is None else hold_height - env.cube_height()  # type: ignore[attr-defined]
-        goal, claw = cube + np.array([0.0, 0.0, rise]), GRIP_COMMAND  # lift (or hold on the floor)
+        if not lift:
+            rise = 0.0  # hold it on the floor
+        elif hold_height is None:
+            rise = 0.12
+        else:
+            rise = hold_height - env.cube_height()  # type: ignore[attr-defined]
+        goal, claw = cube + np.array([0.0, 0.0, rise]), GRIP_COMMAND
     elif aligned and grip[2] - low[2] < 0.006:
         goal, claw = low, GRIP_COMMAND  # close around the cube
     elif aligned:
