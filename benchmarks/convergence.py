@@ -163,12 +163,12 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
 # variants that change the training envs only (the evaluation envs keep the YAML's env_kwargs): every variant
 # named <...>_scripted25<...> starts a quarter of its training episodes along the scripted grasp (those named
 # <...>_scripted25_late<...> 50-99 steps along it, and those named <...>_hold with a scripted grasp that holds the
-# cube 7 cm up)
+# cube HOLD_HEIGHT up)
 TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
     **{name: SCRIPTED25 for name in VARIANTS if f"_{SCRIPTED}" in name},
     "warm_scripted50": {"scripted_start_prob": 0.5},
     **{name: SCRIPTED25_LATE for name in VARIANTS if "_scripted25_late" in name},
-    "plain_scripted50_late": {"scripted_start_prob": 0.5, "scripted_start_steps": (50, 100)},
+    "plain_scripted50_late": {**SCRIPTED25_LATE, "scripted_start_prob": 0.5},
     **{name: {**SCRIPTED25_LATE, "scripted_start_hold_height": HOLD_HEIGHT} for name in VARIANTS if name.endswith("_hold")},
 }
 MULTI_STEP = {"plain_scripted25_ms3"}  # variants trained by multistep.MultiStepTRPOPlus

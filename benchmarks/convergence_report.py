@@ -18,6 +18,7 @@ from convergence import (
     BUDGETS,
     EVAL_EPISODES,
     FORMER_DISCOUNTS,
+    HOLD_HEIGHT,
     ROOT,
     SCRIPTED,
     STUDY_VARIANTS,
@@ -75,7 +76,7 @@ LABELS.update(
 )
 LABELS.update(
     {
-        f"{name}_{SCRIPTED}_late_hold": f"{LABELS[name]}, 25 % late scripted starts, the cube held 7 cm up"
+        f"{name}_{SCRIPTED}_late_hold": f"{LABELS[name]}, 25 % late scripted starts, the cube held {HOLD_HEIGHT:.2f} m up"
         for name in STUDY_VARIANTS
     }
 )
