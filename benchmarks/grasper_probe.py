@@ -2,6 +2,7 @@
 
     python benchmarks/grasper_probe.py --env Grasper3D-v4 --variant warm --seed 3 [--episodes 30]
     python benchmarks/grasper_probe.py --env Grasper3D-v4 --variant plain_scripted25 --seed 2 --failures [--episodes 40]
+    python benchmarks/grasper_probe.py --env Grasper3D-v5 --variant plain_scripted25_late --seed 8 --losses [--episodes 40]
 
 ``--failures``: where and how the held-out episodes fail. Runs the deterministic policy on held-out resets
 seeded 10,000 + episode (the study's evaluation seeds only its first reset with 10,000 and lets the env's generator
@@ -12,7 +13,14 @@ cube behind it is farther from the grip): how many episodes end lifted at the re
 times it, the median step of the first grasp, and how the others failed (never grasped, grasped but never
 lifted, lifted and lost).
 
-Without ``--failures``:
+``--losses``: how the lifted cubes are lost. On the same held-out resets, in episodes of the registered length,
+for every episode whose success (cube up and grasped) ends after having begun, prints the step of the loss, which
+part of the success test failed first (height, the right or left half's contact, the cube's centre between the
+halves along the segment, along the forearm or along the hinge axis), the state just before it (the cube's height
+and vertical speed, the policy's vertical grip and claw commands, the claw's torque and angle, the forearm's tilt
+from pointing down) and whether the episode ends lifted all the same.
+
+Without ``--failures`` or ``--losses``:
 Runs the saved policy (with its VecNormalize statistics) on seeded episodes (reset seed 30,000, not the
 study's held-out 10,000) three ways: as it is, and with the vertical grip command replaced by a constant
 (0.3, 0.6) from the first grasp until the cube is 7 cm up; every other action component stays the policy's.
@@ -35,6 +43,7 @@ from convergence import algorithm_class  # benchmarks/ is on sys.path when this 
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import grasp_envs  # noqa: F401
+from grasp_envs import grasper3d_v4
 from grasp_envs.scripted import grasper3d_policy
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -176,6 +185,81 @@ def failures(model: Any, env_id: str, folder: Path, episodes: int) -> None:
         print("\n".join(failure_table(group, registered)))
 
 
+LOSS_PARTS = ("height", "right contact", "left contact", "along the segment", "along the forearm", "along the hinge")
+
+
+def success_parts(arm: Any) -> dict[str, bool]:
+    """Each part of v4/v5's success test (``_is_success``): all true exactly when the task counts as solved."""
+    contacts = arm.claw_cube_contacts()
+    t, offset_world = arm._cube_off_claw_segment()
+    offset = arm.data.body("forearm").xmat.reshape(3, 3).T @ offset_world
+    tolerance = grasper3d_v4.BETWEEN_TOLERANCE
+    return dict(
+        zip(
+            LOSS_PARTS,
+            (
+                arm.cube_height() >= arm._lift_height,
+                contacts["right"] > 0,
+                contacts["left"] > 0,
+                0.0 < t < 1.0,
+                abs(offset[0]) <= tolerance,
+                abs(offset[2]) <= tolerance,
+            ),
+            strict=True,
+        )
+    )
+
+
+def losses(model: Any, env_id: str, folder: Path, episodes: int) -> None:
+    """Print the ``--losses`` table: one row per held-out episode that lifts the cube and loses it."""
+    registered = gym.spec(env_id).max_episode_steps
+    assert registered is not None
+    env = saved_env(folder, env_id, max_episode_steps=registered)
+    arm = env.venv.envs[0].unwrapped  # type: ignore[attr-defined]
+    print(f"\nthe saved policy (deterministic), {episodes} held-out resets from seed {HELD_OUT_SEED}\n")
+    print(
+        "| reset | lifted at step | lost at step | failed first | height (cm) | cube's vertical speed (cm/s) "
+        "| vertical command | claw command | claw torque (N m) | claw angle (rad) | forearm tilt from down (°) "
+        f"| lifted again at step {registered} |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    lost = 0
+    for episode in range(episodes):
+        env.seed(HELD_OUT_SEED + episode)
+        obs: Any = env.reset()
+        first_lift, row = None, ""
+        before: tuple[float, ...] = ()
+        for t in range(1, registered + 1):
+            action, _ = model.predict(obs, deterministic=True)
+            command = np.clip(action[0], -1.0, 1.0)
+            forearm = arm.data.body("forearm").xmat.reshape(3, 3)[:, 0]
+            before = (
+                100 * arm.cube_height(),
+                100 * float(arm.data.qvel[arm.model.joint("cube_z").dofadr[0]]),
+                float(command[2]),
+                float(command[3]),
+                arm.claw_torque(),
+                float(arm.data.joint("claw_right").qpos[0]),
+                float(np.degrees(np.arccos(np.clip(-forearm[2], -1.0, 1.0)))),
+            )
+            obs, _, _, infos = env.step(action)
+            success = bool(infos[0]["is_success"])
+            if first_lift is None and success:
+                first_lift = t
+            elif first_lift is not None and not success and not row:
+                parts = success_parts(arm)
+                failed = ", ".join(part for part in LOSS_PARTS if not parts[part])
+                height, speed, vertical, claw, torque, angle, tilt = before
+                row = (
+                    f"| {HELD_OUT_SEED + episode} | {first_lift} | {t} | {failed} | {height:.1f} | {speed:+.1f} "
+                    f"| {vertical:+.2f} | {claw:+.2f} | {torque:.2f} | {angle:+.3f} | {tilt:.0f} |"
+                )
+        if row:  # the VecEnv reset after the last step: infos[0] is that step's
+            print(f"{row} {'yes' if infos[0]['is_success'] else 'no'} |")
+            lost += 1
+    print(f"\n{lost} of {episodes} episodes lost a lifted cube within {registered} steps")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="Grasper3D-v4")
@@ -183,6 +267,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--episodes", type=int, default=30)
     parser.add_argument("--failures", action="store_true", help="where and how the held-out episodes fail")
+    parser.add_argument("--losses", action="store_true", help="how the lifted cubes are lost")
     args = parser.parse_args()
     folder = ROOT / "benchmarks" / "results" / "convergence" / args.env / args.variant / f"seed{args.seed}"
     if not (folder / "model.zip").exists():
@@ -191,6 +276,10 @@ def main() -> None:
     if args.failures:
         print(f"{args.env} {args.variant} seed {args.seed}")
         failures(model, args.env, folder, args.episodes)
+        return
+    if args.losses:
+        print(f"{args.env} {args.variant} seed {args.seed}")
+        losses(model, args.env, folder, args.episodes)
         return
     env = saved_env(folder, args.env)
     print(f"{args.env} {args.variant} seed {args.seed}, {args.episodes} episodes from reset seed {PROBE_SEED}\n")
