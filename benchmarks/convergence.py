@@ -44,6 +44,7 @@ BUDGETS = {
     "Grasper3D-v3": 5_000_000,
     "Grasper3D-v4": 5_000_000,
     "Grasper3D-v5": 5_000_000,
+    "Grasper3D-v6": 5_000_000,
 }
 TARGETS = {
     "Reacher2D-v0": 0.9,
@@ -57,6 +58,7 @@ TARGETS = {
     "Grasper3D-v3": 0.9,
     "Grasper3D-v4": 0.9,
     "Grasper3D-v5": 0.9,
+    "Grasper3D-v6": 0.9,
 }
 # the thesis' two switches; the variants below change one setting on top of one of these
 PLAIN: dict[str, Any] = {"replay_memory": 0, "cg_warm_start": False}
@@ -148,6 +150,9 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # Grasper3D-v5, session 20: the late starts copy the scripted grasp, which kept raising the cube until the arm ran
     # out of reach and lost 13 of 40 held-out cubes after lifting them; here it holds the cube 7 cm up (3 lost)
     **{f"{name}_{SCRIPTED}_late_hold": (algo, overrides) for name, (algo, overrides) in STUDY.items()},
+    # Grasper3D-v6, session 22: its first form let the cube turn about every axis (a ball joint), and the claw tumbled
+    # it on the floor; the registered v6 turns it about the vertical only
+    "plain_scripted25_late_freecube": ("trpo_plus", {**PLAIN, "env_kwargs": {"cube_rotation": "free"}}),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (

@@ -3,6 +3,7 @@
     python benchmarks/grasper_probe.py --env Grasper3D-v4 --variant warm --seed 3 [--episodes 30]
     python benchmarks/grasper_probe.py --env Grasper3D-v4 --variant plain_scripted25 --seed 2 --failures [--episodes 40]
     python benchmarks/grasper_probe.py --env Grasper3D-v5 --variant plain_scripted25_late --seed 8 --losses [--episodes 40]
+    python benchmarks/grasper_probe.py --env Grasper3D-v5 --variant plain_scripted25_late --seed 8 --what-if [--episodes 40]
 
 ``--failures``: where and how the held-out episodes fail. Runs the deterministic policy on held-out resets
 seeded 10,000 + episode (the study's evaluation seeds only its first reset with 10,000 and lets the env's generator
@@ -20,7 +21,14 @@ halves along the segment, along the forearm or along the hinge axis), the state 
 and vertical speed, the policy's vertical grip and claw commands, the claw's torque and angle, the forearm's tilt
 from pointing down) and whether the episode ends lifted all the same.
 
-Without ``--failures`` or ``--losses``:
+``--what-if``: are the losses the simulation's? The saved policy, unchanged, and the scripted grasp on the same
+held-out resets in registered-length episodes, with the model as trained and with one change at a time: MuJoCo's
+settings against slip in grasping (elliptic friction cones with ``impratio`` 10, the noslip solver, twice the
+friction, half the time step at the same control period) and a cube that can turn (Grasper3D-v6's joint, about the
+vertical or about every axis; the observation stays the saved policy's). Prints how many episodes end lifted and
+how many lifted the cube and lost it.
+
+Without ``--failures``, ``--losses`` or ``--what-if``:
 Runs the saved policy (with its VecNormalize statistics) on seeded episodes (reset seed 30,000, not the
 study's held-out 10,000) three ways: as it is, and with the vertical grip command replaced by a constant
 (0.3, 0.6) from the first grasp until the cube is 7 cm up; every other action component stays the policy's.
@@ -33,17 +41,19 @@ risky for the policy's grip; the policy has simply not found it.
 from __future__ import annotations
 
 import argparse
+import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 from convergence import algorithm_class  # benchmarks/ is on sys.path when this file runs as a script
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import grasp_envs  # noqa: F401
-from grasp_envs import grasper3d_v4
+from grasp_envs import grasper3d_v4, grasper3d_v6
 from grasp_envs.scripted import grasper3d_policy
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -260,6 +270,92 @@ def losses(model: Any, env_id: str, folder: Path, episodes: int) -> None:
     print(f"\n{lost} of {episodes} episodes lost a lifted cube within {registered} steps")
 
 
+def _elliptic_cones(model: mujoco.MjModel) -> None:
+    model.opt.cone, model.opt.impratio = mujoco.mjtCone.mjCONE_ELLIPTIC, 10.0
+
+
+def _noslip(model: mujoco.MjModel) -> None:
+    model.opt.noslip_iterations = 20
+
+
+def _double_friction(model: mujoco.MjModel) -> None:
+    model.geom_friction[:, 0] *= 2.0
+
+
+# change -> (edit of the compiled model, physics steps per control step as a multiple of the env's, how the cube turns
+# (Grasper3D-v6's cube_rotation; None: it only slides))
+WHAT_IF: dict[str, tuple[Callable[[mujoco.MjModel], None] | None, int, str | None]] = {
+    "as trained": (None, 1, None),
+    "elliptic cones, impratio 10": (_elliptic_cones, 1, None),
+    "noslip solver, 20 iterations": (_noslip, 1, None),
+    "friction 2 instead of 1": (_double_friction, 1, None),
+    "time step 0.005 s, 4 per action": (None, 2, None),
+    "the cube turns about the vertical (v6)": (None, 1, "yaw"),
+    'the cube turns about every axis (v6, `cube_rotation="free"`)': (None, 1, "free"),
+}
+
+
+def turning_cube_xml(env_id: str, folder: Path, cube_rotation: str = "yaw") -> str:
+    """The env's model with Grasper3D-v6's cube rotation, written to ``folder`` (for ``xml_file``)."""
+    spec = mujoco.MjSpec.from_file(gym.make(env_id).unwrapped.fullpath)  # type: ignore[attr-defined]
+    grasper3d_v6.add_cube_rotation(spec, cube_rotation)
+    path = folder / f"cube_{cube_rotation}.xml"
+    path.write_text(spec.to_xml())
+    return str(path)
+
+
+def _outcomes(model: Any, env: VecNormalize, scripted_env: gym.Env, episodes: int, limit: int) -> list[int]:
+    """Episodes ending lifted and lifted-and-lost, for the saved policy in ``env`` and the scripted grasp."""
+    arm, scripted_arm = env.venv.envs[0].unwrapped, scripted_env.unwrapped  # type: ignore[attr-defined]
+
+    def learned_step(action: Any) -> tuple[Any, bool]:
+        obs, _, _, infos = env.step(action)
+        return obs, bool(infos[0]["is_success"])
+
+    def scripted_step(action: Any) -> tuple[Any, bool]:
+        return None, bool(scripted_env.step(action)[4]["is_success"])
+
+    def learned_policy(obs: Any) -> Any:
+        return model.predict(obs, deterministic=True)[0]
+
+    def scripted_policy(_: Any) -> Any:
+        return grasper3d_policy(scripted_arm)  # type: ignore[arg-type]
+
+    learned, scripted = [], []
+    for episode in range(episodes):
+        env.seed(HELD_OUT_SEED + episode)
+        learned.append(outcome(trace(env.reset(), learned_policy, learned_step, arm, limit, (limit,)), limit))
+        scripted_env.reset(seed=HELD_OUT_SEED + episode)
+        scripted.append(outcome(trace(None, scripted_policy, scripted_step, scripted_arm, limit, (limit,)), limit))
+    return [kinds.count(kind) for kinds in (learned, scripted) for kind in ("lifted", "lifted and lost")]
+
+
+def what_if(model: Any, env_id: str, folder: Path, episodes: int) -> None:
+    """Print the ``--what-if`` table: the policy and the scripted grasp under each change of WHAT_IF."""
+    registered = gym.spec(env_id).max_episode_steps
+    assert registered is not None
+    print(f"\n{episodes} held-out resets from seed {HELD_OUT_SEED}, {registered} steps\n")
+    print(
+        "| model | policy: lifted at the end | policy: lifted and lost "
+        "| scripted grasp: lifted at the end | scripted grasp: lifted and lost |"
+    )
+    print("|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as tmp:
+        for change, (edit, substeps, rotation) in WHAT_IF.items():
+            kwargs: dict[str, Any] = {"max_episode_steps": registered}
+            if rotation is not None:
+                kwargs["xml_file"] = turning_cube_xml(env_id, Path(tmp), rotation)
+            env, scripted_env = saved_env(folder, env_id, **kwargs), gym.make(env_id, **kwargs)
+            arms: list[Any] = [env.venv.envs[0].unwrapped, scripted_env.unwrapped]  # type: ignore[attr-defined]
+            for arm in arms:
+                if edit is not None:
+                    edit(arm.model)
+                arm.model.opt.timestep /= substeps
+                arm.frame_skip *= substeps
+            counts = _outcomes(model, env, scripted_env, episodes, registered)
+            print(f"| {change} | " + " | ".join(str(count) for count in counts) + " |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="Grasper3D-v4")
@@ -268,6 +364,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=30)
     parser.add_argument("--failures", action="store_true", help="where and how the held-out episodes fail")
     parser.add_argument("--losses", action="store_true", help="how the lifted cubes are lost")
+    parser.add_argument("--what-if", action="store_true", help="the losses under other physics settings")
     args = parser.parse_args()
     folder = ROOT / "benchmarks" / "results" / "convergence" / args.env / args.variant / f"seed{args.seed}"
     if not (folder / "model.zip").exists():
@@ -277,9 +374,9 @@ def main() -> None:
         print(f"{args.env} {args.variant} seed {args.seed}")
         failures(model, args.env, folder, args.episodes)
         return
-    if args.losses:
+    if args.losses or args.what_if:
         print(f"{args.env} {args.variant} seed {args.seed}")
-        losses(model, args.env, folder, args.episodes)
+        (losses if args.losses else what_if)(model, args.env, folder, args.episodes)
         return
     env = saved_env(folder, args.env)
     print(f"{args.env} {args.variant} seed {args.seed}, {args.episodes} episodes from reset seed {PROBE_SEED}\n")

@@ -51,7 +51,8 @@ def grasper3d_policy(env: ArmEnv, lift: bool = True, hold_height: float | None =
     ``lift=False`` grasps and keeps the cube on the floor: the "farm the contact reward" behaviour.
     ``hold_height``: lift until the cube's bottom is this high (m) and hold it there. ``None`` keeps commanding
     the grip 12 cm above the cube, so the cube rises until the arm runs out of reach, where the forearm tilts and
-    the claw often lets it go (Grasper3D-v5, 40 held-out resets: lost after lifting 13 times; hold at 0.07: 3).
+    the claw turns about it; a cube that cannot turn with the claw is then levered out (Grasper3D-v5, 40 held-out
+    resets: lost after lifting 13 times; hold at 0.07: 3); one that can stays in it (Grasper3D-v6: 0).
     """
     data, model = env.data, env.model
     cube = data.geom("cube").xpos.copy()
@@ -101,4 +102,5 @@ SCRIPTED_POLICIES = {
     "Grasper3D-v3": grasper3d_policy,
     "Grasper3D-v4": grasper3d_policy,
     "Grasper3D-v5": grasper3d_policy,
+    "Grasper3D-v6": grasper3d_policy,
 }

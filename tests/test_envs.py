@@ -176,7 +176,9 @@ def test_scripted_controller_reaches_target(env_id: str) -> None:
         assert info["is_success"], f"seed {seed}: distance {info['distance']:.3f}"
 
 
-@pytest.mark.parametrize("env_id", ["Grasper3D-v0", "Grasper3D-v1", "Grasper3D-v2", "Grasper3D-v3", "Grasper3D-v4"])
+@pytest.mark.parametrize(
+    "env_id", ["Grasper3D-v0", "Grasper3D-v1", "Grasper3D-v2", "Grasper3D-v3", "Grasper3D-v4", "Grasper3D-v6"]
+)
 def test_scripted_controller_grasps_and_lifts_cube(env_id: str) -> None:
     env = gym.make(env_id)
     policy = SCRIPTED_POLICIES[env_id]
@@ -242,6 +244,7 @@ def _episode_return(reward_mode: str, seed: int, lift: bool, env_id: str = "Gras
         ("Grasper3D-v2", 100.0),
         ("Grasper3D-v3", 100.0),
         ("Grasper3D-v4", 100.0),
+        ("Grasper3D-v6", 100.0),
     ],
 )
 def test_staged_reward_pays_lifting_more_than_holding_the_cube_down(env_id: str, min_margin: float) -> None:
@@ -548,6 +551,41 @@ def test_grasper_v5_is_v4_observed_in_task_space() -> None:
         assert np.dot(obs5[:3], moved) >= 0.0  # and it points the way the grip moved
         lifted = lifted or info5["is_success"]
     assert lifted  # the episode went through reach, grasp and lift
+
+
+# held-out resets (benchmarks/grasper_probe.py's) on which v5's scripted grasp lifts the cube and loses it again
+V5_LOSSES = (10_000, 10_002, 10_008, 10_011, 10_014)
+
+
+def test_grasper_v6_cube_turns_with_the_claw() -> None:
+    """v6's cube can turn about the vertical: it starts square to the world axes, observes its axes in rows 26-31,
+    stays upright, and where v5's cube, which only slides, is levered out of the claw after the lift, v6's turns
+    with the claw and stays up."""
+    from grasp_envs import scripted
+
+    v6 = gym.make("Grasper3D-v6")
+    arm = v6.unwrapped
+    obs, _ = v6.reset(seed=0)
+    assert obs.shape == v6.observation_space.shape == (32,)
+    np.testing.assert_array_equal(obs[26:], [1.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+    v5 = gym.make("Grasper3D-v5")
+    for seed in V5_LOSSES:
+        ends_up = {}
+        for env in (v5, v6):
+            env.reset(seed=seed)
+            lifted = False
+            for _ in range(100):
+                obs, *_, info = env.step(scripted.grasper3d_policy(env.unwrapped))  # type: ignore[arg-type]
+                lifted = lifted or info["is_success"]
+            assert lifted, f"{env.spec.id}, reset seed {seed}: never lifted"
+            ends_up[env.spec.id] = info["is_success"]
+        assert ends_up == {"Grasper3D-v5": False, "Grasper3D-v6": True}, seed
+        rotation = arm.data.geom("cube").xmat.reshape(3, 3)  # type: ignore[attr-defined]
+        np.testing.assert_allclose(obs[26:], np.r_[rotation[:, 0], rotation[:, 2]])
+        np.testing.assert_allclose(obs[29:], [0.0, 0.0, 1.0], atol=1e-12)  # upright
+        assert obs[26] < np.cos(np.radians(30.0))  # it turned about the vertical by more than 30 degrees
+    with pytest.raises(ValueError, match="cube_rotation must be one of \\['free', 'yaw'\\], got 'roll'"):
+        gym.make("Grasper3D-v6", cube_rotation="roll")
 
 
 def test_derived_docstring_refuses_a_lost_anchor() -> None:

@@ -1,4 +1,5 @@
-"""benchmarks/grasper_probe.py --failures: how an episode is classified and counted."""
+"""benchmarks/grasper_probe.py: how an episode is classified and counted (--failures), how a loss is named
+(--losses), and the turning cube of --what-if."""
 
 import sys
 from pathlib import Path
@@ -9,7 +10,15 @@ import numpy as np
 import grasp_envs  # noqa: F401  (registers the envs)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from grasper_probe import Episode, failure_table, outcome, trace  # benchmarks/grasper_probe.py
+from grasper_probe import (  # benchmarks/grasper_probe.py
+    LOSS_PARTS,
+    Episode,
+    failure_table,
+    outcome,
+    success_parts,
+    trace,
+    turning_cube_xml,
+)
 
 CHECKS = {100: False, 150: False, 200: False}
 
@@ -60,3 +69,34 @@ def test_trace_follows_the_scripted_grasp_past_the_registered_length() -> None:
     assert set(result.lifted_at) == {100, 150, 200}
     assert result.first_grasp is not None and result.first_lift is not None  # the scripted grasp lifts this cube
     assert result.first_grasp < result.first_lift
+
+
+def test_success_parts_decompose_the_success_test() -> None:
+    """--losses names the part of the success test that failed: the parts together are the env's test."""
+    from grasp_envs.scripted import grasper3d_policy
+
+    env = gym.make("Grasper3D-v5")
+    env.reset(seed=10_000)  # the scripted grasp lifts this cube and loses it (tests/test_envs.py)
+    arm = env.unwrapped
+    seen = set()
+    for _ in range(100):
+        info = env.step(grasper3d_policy(arm))[4]  # type: ignore[arg-type]
+        parts = success_parts(arm)
+        assert list(parts) == list(LOSS_PARTS)
+        assert info["is_success"] == all(parts.values())
+        seen.add(info["is_success"])
+    assert seen == {False, True}
+
+
+def test_turning_cube_model_is_v6s_cube_under_the_saved_observation(tmp_path: Path) -> None:
+    """--what-if's turning cube: v5's observation and model with v6's ball joint, so v5's losses go as on v6."""
+    from grasp_envs.scripted import grasper3d_policy
+
+    env = gym.make("Grasper3D-v5", xml_file=turning_cube_xml("Grasper3D-v5", tmp_path))
+    arm = env.unwrapped
+    obs, _ = env.reset(seed=10_000)
+    assert obs.shape == (26,)
+    assert arm.model.joint("cube_rotation").type == 3  # type: ignore[attr-defined]  # mjJNT_HINGE
+    for _ in range(100):
+        info = env.step(grasper3d_policy(arm))[4]  # type: ignore[arg-type]
+    assert info["is_success"]  # v5's model loses this cube after the lift
