@@ -160,15 +160,12 @@ def failure_table(episodes: Sequence[Episode], limit: int) -> list[str]:
     return rows
 
 
-def failures(model: Any, env_id: str, folder: Path, episodes: int) -> None:
-    """Print the ``--failures`` tables for the saved policy and for the scripted grasp."""
-    registered = gym.spec(env_id).max_episode_steps
-    assert registered is not None
-    steps, checks = 2 * registered, (registered, registered * 3 // 2, 2 * registered)
-    env = saved_env(folder, env_id, max_episode_steps=steps)
-    arm = env.venv.envs[0].unwrapped  # type: ignore[attr-defined]
-    scripted_env = gym.make(env_id, max_episode_steps=steps)
-    scripted_arm = scripted_env.unwrapped
+def held_out_episodes(
+    model: Any, env: VecNormalize, scripted_env: gym.Env, episodes: int, steps: int, checks: Sequence[int]
+) -> tuple[list[Episode], list[Episode]]:
+    """The saved policy (deterministic, in ``env``) and the scripted grasp (in ``scripted_env``) on the same held-out
+    resets, ``steps`` steps each: one ``Episode`` per reset for each."""
+    arm, scripted_arm = env.venv.envs[0].unwrapped, scripted_env.unwrapped  # type: ignore[attr-defined]
 
     def learned_step(action: Any) -> tuple[Any, bool]:
         obs, _, _, infos = env.step(action)
@@ -177,16 +174,28 @@ def failures(model: Any, env_id: str, folder: Path, episodes: int) -> None:
     def scripted_step(action: Any) -> tuple[Any, bool]:
         return None, bool(scripted_env.step(action)[4]["is_success"])
 
+    def learned_policy(obs: Any) -> Any:
+        return model.predict(obs, deterministic=True)[0]
+
     def scripted_policy(_: Any) -> Any:
         return grasper3d_policy(scripted_arm)  # type: ignore[arg-type]
 
     learned, scripted = [], []
     for episode in range(episodes):
         env.seed(HELD_OUT_SEED + episode)
-        obs = env.reset()
-        learned.append(trace(obs, lambda o: model.predict(o, deterministic=True)[0], learned_step, arm, steps, checks))
+        learned.append(trace(env.reset(), learned_policy, learned_step, arm, steps, checks))
         scripted_env.reset(seed=HELD_OUT_SEED + episode)
         scripted.append(trace(None, scripted_policy, scripted_step, scripted_arm, steps, checks))
+    return learned, scripted
+
+
+def failures(model: Any, env_id: str, folder: Path, episodes: int) -> None:
+    """Print the ``--failures`` tables for the saved policy and for the scripted grasp."""
+    registered = gym.spec(env_id).max_episode_steps
+    assert registered is not None
+    steps, checks = 2 * registered, (registered, registered * 3 // 2, 2 * registered)
+    env, scripted_env = saved_env(folder, env_id, max_episode_steps=steps), gym.make(env_id, max_episode_steps=steps)
+    learned, scripted = held_out_episodes(model, env, scripted_env, episodes, steps, checks)
     header = " / ".join(str(t) for t in checks)
     for name, group in (("the saved policy (deterministic)", learned), ("the scripted grasp", scripted)):
         print(f"\n{name}, {episodes} held-out resets from seed {HELD_OUT_SEED}\n")
@@ -306,28 +315,9 @@ def turning_cube_xml(env_id: str, folder: Path, cube_rotation: str = "yaw") -> s
 
 def _outcomes(model: Any, env: VecNormalize, scripted_env: gym.Env, episodes: int, limit: int) -> list[int]:
     """Episodes ending lifted and lifted-and-lost, for the saved policy in ``env`` and the scripted grasp."""
-    arm, scripted_arm = env.venv.envs[0].unwrapped, scripted_env.unwrapped  # type: ignore[attr-defined]
-
-    def learned_step(action: Any) -> tuple[Any, bool]:
-        obs, _, _, infos = env.step(action)
-        return obs, bool(infos[0]["is_success"])
-
-    def scripted_step(action: Any) -> tuple[Any, bool]:
-        return None, bool(scripted_env.step(action)[4]["is_success"])
-
-    def learned_policy(obs: Any) -> Any:
-        return model.predict(obs, deterministic=True)[0]
-
-    def scripted_policy(_: Any) -> Any:
-        return grasper3d_policy(scripted_arm)  # type: ignore[arg-type]
-
-    learned, scripted = [], []
-    for episode in range(episodes):
-        env.seed(HELD_OUT_SEED + episode)
-        learned.append(outcome(trace(env.reset(), learned_policy, learned_step, arm, limit, (limit,)), limit))
-        scripted_env.reset(seed=HELD_OUT_SEED + episode)
-        scripted.append(outcome(trace(None, scripted_policy, scripted_step, scripted_arm, limit, (limit,)), limit))
-    return [kinds.count(kind) for kinds in (learned, scripted) for kind in ("lifted", "lifted and lost")]
+    groups = held_out_episodes(model, env, scripted_env, episodes, limit, (limit,))
+    kinds = [[outcome(episode, limit) for episode in group] for group in groups]
+    return [group.count(kind) for group in kinds for kind in ("lifted", "lifted and lost")]
 
 
 def what_if(model: Any, env_id: str, folder: Path, episodes: int) -> None:
