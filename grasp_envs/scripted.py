@@ -52,7 +52,7 @@ def grasper3d_policy(env: ArmEnv, lift: bool = True, hold_height: float | None =
     ``hold_height``: lift until the cube's bottom is this high (m) and hold it there. ``None`` keeps commanding
     the grip 12 cm above the cube, so the cube rises until the arm runs out of reach, where the forearm tilts and
     the claw turns about it; a cube that cannot turn with the claw is then levered out (Grasper3D-v5, 40 held-out
-    resets: lost after lifting 13 times; hold at 0.07: 3); one that can stays in it (Grasper3D-v6: 0).
+    resets: lost after lifting 13 times; hold at 0.07: 3); one that can turn with it mostly stays (Grasper3D-v6: 2).
     """
     data, model = env.data, env.model
     cube = data.geom("cube").xpos.copy()
