@@ -210,8 +210,7 @@ LOSS_PARTS = ("height", "right contact", "left contact", "along the segment", "a
 def success_parts(arm: Any) -> dict[str, bool]:
     """Each part of v4/v5's success test (``_is_success``): all true exactly when the task counts as solved."""
     contacts = arm.claw_cube_contacts()
-    t, offset_world = arm._cube_off_claw_segment()
-    offset = arm.data.body("forearm").xmat.reshape(3, 3).T @ offset_world
+    t, offset = arm.cube_off_claw_segment_in_forearm_frame()
     tolerance = grasper3d_v4.BETWEEN_TOLERANCE
     return dict(
         zip(

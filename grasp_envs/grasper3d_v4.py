@@ -3,6 +3,9 @@ grasp test accepts every grip by both claw halves."""
 
 from __future__ import annotations
 
+import numpy as np
+from numpy.typing import NDArray
+
 from grasp_envs import grasper3d_v3
 from grasp_envs.base import derived_docstring
 
@@ -58,7 +61,11 @@ class Grasper3DEnv(grasper3d_v3.Grasper3DEnv):
         to the left claw site falls inside the segment, and its offset from the segment is at most 2.5 cm along
         the forearm and along the claw's hinge axis, each (a cube pressed from beyond the tips is >= 3 cm out
         along the forearm)."""
+        t, offset = self.cube_off_claw_segment_in_forearm_frame()
+        return 0.0 < t < 1.0 and abs(offset[0]) <= BETWEEN_TOLERANCE and abs(offset[2]) <= BETWEEN_TOLERANCE
+
+    def cube_off_claw_segment_in_forearm_frame(self) -> tuple[float, NDArray[np.float64]]:
+        """``_cube_off_claw_segment`` with the offset in the forearm's frame (x along the forearm, z the hinge axis)."""
         t, offset_world = self._cube_off_claw_segment()
         forearm = self.data.body("forearm").xmat.reshape(3, 3)  # columns: x along the forearm, z the hinge axis
-        offset = forearm.T @ offset_world
-        return 0.0 < t < 1.0 and abs(offset[0]) <= BETWEEN_TOLERANCE and abs(offset[2]) <= BETWEEN_TOLERANCE
+        return t, forearm.T @ offset_world
