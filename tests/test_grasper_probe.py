@@ -89,7 +89,7 @@ def test_success_parts_decompose_the_success_test() -> None:
 
 
 def test_turning_cube_model_is_v6s_cube_under_the_saved_observation(tmp_path: Path) -> None:
-    """--what-if's turning cube: v5's observation and model with v6's ball joint, so v5's losses go as on v6."""
+    """--what-if's turning cube: v5's observation and model with v6's hinge, so v5's losses go as on v6."""
     from grasp_envs.scripted import grasper3d_policy
 
     env = gym.make("Grasper3D-v5", xml_file=turning_cube_xml("Grasper3D-v5", tmp_path))
