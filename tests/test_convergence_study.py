@@ -128,3 +128,49 @@ def test_update_kl_is_per_state_and_matches_trpo_plus_line_search() -> None:
     result = update_kl.measure("Reacher2D-v1", "plain", steps=4096)
     assert len(result["kl"]) == 2
     np.testing.assert_allclose(result["kl"], 2 * np.asarray(result["logged_kl"]), rtol=1e-3)
+
+
+def test_warm_start_share_against_hand_computed_cg() -> None:
+    """benchmarks/warm_start_share.py on A = diag(1, 4), b = (1, 1), previous step x0 = (1, 0).
+
+    x0's line minimiser is x0 itself (x0.b / x0.A x0 = 1). One CG iteration from x0 reaches the solution
+    (1, 1/4): the residual (0, 1) is an eigenvector. From zero it reaches 2/5 (1, 1): objective x.A x / 2 - b.x
+    -0.4 against -0.625, so the warm start's gain is 0.225 / 0.4; with two iterations both are exact.
+    """
+    import numpy as np
+    import torch as th
+    import warm_start_share
+
+    from sb3_trpo_plus.natural_gradient import conjugate_gradient
+
+    def fvp(v: th.Tensor) -> th.Tensor:
+        return th.tensor([1.0, 4.0], dtype=th.float64) * v
+
+    b, x0 = th.tensor([1.0, 1.0], dtype=th.float64), th.tensor([1.0, 0.0], dtype=th.float64)
+    one = conjugate_gradient(fvp, b, x0, max_iter=1, warm_start_rescale=True)
+    figures = warm_start_share.compare_starts(fvp, b, x0, one, max_iter=1, rescale=True)
+    assert figures["start_gradient_cosine"] == pytest.approx(1 / np.sqrt(2))
+    assert figures["start_share"] == pytest.approx(1 / np.sqrt(1 + 1 / 16))
+    assert figures["solution_cosine"] == pytest.approx(0.5 / (np.sqrt(1 + 1 / 16) * np.sqrt(0.32)))
+    assert figures["objective_gain"] == pytest.approx(0.225 / 0.4)
+    two = conjugate_gradient(fvp, b, x0, max_iter=2, warm_start_rescale=True)
+    figures = warm_start_share.compare_starts(fvp, b, x0, two, max_iter=2, rescale=True)
+    assert figures["solution_cosine"] == pytest.approx(1.0)
+    assert figures["objective_gain"] == pytest.approx(0.0, abs=1e-12)
+    # unscaled (the thesis' raw previous step): 2 x0 is its own share, not its line minimiser x0
+    raw = warm_start_share.compare_starts(fvp, b, 2 * x0, two, max_iter=2, rescale=False)
+    assert raw["start_share"] == pytest.approx(2 / np.sqrt(1 + 1 / 16))
+
+
+def test_warm_start_share_measures_every_warm_started_update_and_restores_the_solver() -> None:
+    """Three updates of the plain variant with the warm start switched on: the last two are warm-started."""
+    import warm_start_share
+
+    import sb3_trpo_plus.trpo_plus as trpo_plus_module
+
+    solver = trpo_plus_module.conjugate_gradient
+    result = warm_start_share.measure("Reacher2D-v1", "plain", seed=0, steps=3 * 2048, from_run=False, raw=False)
+    assert trpo_plus_module.conjugate_gradient is solver
+    assert len(result["updates"]) == 2
+    for row in result["updates"]:
+        assert -1.0 <= row["solution_cosine"] <= 1.0 + 1e-6 and row["start_share"] >= 0.0
