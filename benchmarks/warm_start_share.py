@@ -36,10 +36,7 @@ from sb3_trpo_plus.natural_gradient import ConjugateGradientResult, conjugate_gr
 
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = ("start_gradient_cosine", "start_share", "solution_cosine", "objective_gain")
-
-
-def _cosine(a: th.Tensor, b: th.Tensor) -> float:
-    return float(th.dot(a, b) / (th.linalg.vector_norm(a) * th.linalg.vector_norm(b)).clamp_min(1e-30))
+_cosine = trpo_plus_module._cosine  # the cosine TRPOPlus logs (train/cg_warm_start_cosine)
 
 
 def compare_starts(
