@@ -201,6 +201,13 @@ COLUMNS = [
 
 
 # ---------------------------------------------------------------------------------------------- one job
+def add_run_arguments(parser: argparse.ArgumentParser, env_id: str, variant: str) -> None:
+    """``--env``, ``--variant`` and ``--seed``: the study run a diagnostic script looks at."""
+    parser.add_argument("--env", default=env_id)
+    parser.add_argument("--variant", default=variant, choices=list(VARIANTS))
+    parser.add_argument("--seed", type=int, default=0)
+
+
 def job_folder(out: Path, env_id: str, variant: str, seed: int) -> Path:
     return out / env_id / variant / f"seed{seed}"
 

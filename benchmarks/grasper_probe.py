@@ -49,7 +49,7 @@ from typing import Any, NamedTuple
 import gymnasium as gym
 import mujoco
 import numpy as np
-from convergence import algorithm_class  # benchmarks/ is on sys.path when this file runs as a script
+from convergence import add_run_arguments, algorithm_class  # benchmarks/ is on sys.path when this file runs as a script
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import grasp_envs  # noqa: F401
@@ -347,9 +347,7 @@ def what_if(model: Any, env_id: str, folder: Path, episodes: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--env", default="Grasper3D-v4")
-    parser.add_argument("--variant", default="warm")
-    parser.add_argument("--seed", type=int, default=0)
+    add_run_arguments(parser, "Grasper3D-v4", "warm")
     parser.add_argument("--episodes", type=int, default=30)
     parser.add_argument("--failures", action="store_true", help="where and how the held-out episodes fail")
     parser.add_argument("--losses", action="store_true", help="how the lifted cubes are lost")

@@ -116,10 +116,10 @@ def summary(result: dict[str, Any]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
+    from convergence import add_run_arguments  # benchmarks/ is on sys.path when this file runs as a script
+
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--env", default="Grasper3D-v6")
-    parser.add_argument("--variant", default="warm_scripted25_late")
-    parser.add_argument("--seed", type=int, default=0)
+    add_run_arguments(parser, "Grasper3D-v6", "warm_scripted25_late")
     parser.add_argument("--steps", type=int, default=200_000)
     parser.add_argument("--from-run", action="store_true", help="start from the study run's saved checkpoint")
     parser.add_argument("--raw", action="store_true", help="the previous step unscaled (cg_warm_start_rescale off)")
