@@ -247,23 +247,25 @@ def training_env_kwargs(variant: str, env_kwargs: dict[str, Any] | None) -> dict
     return {**(env_kwargs or {}), **TRAIN_ENV_KWARGS.get(variant, {})}
 
 
-def new_model(env_id: str, variant: str, seed: int, env: Any = None) -> Any:
-    """A new model of ``variant`` (zoo settings plus its switches), unmonitored, for the diagnostic scripts.
-
-    On ``env``, or on new training envs seeded with ``seed`` (the variant's training-env kwargs, VecNormalize
-    where the YAML asks for it). ``run_job`` builds its own: it monitors episodes and resumes checkpoints.
-    """
+def training_envs(env_id: str, variant: str, seed: int) -> Any:
+    """New unmonitored training envs of ``variant`` seeded with ``seed``, for the diagnostic scripts: the variant's
+    training-env kwargs, VecNormalize where the YAML asks for it. ``run_job`` builds its own (it monitors episodes)."""
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
     import grasp_envs  # noqa: F401
 
     algo, overrides = VARIANTS[variant]
-    params, n_envs, normalize, policy, env_kwargs = model_settings(algo, env_id, overrides)
-    if env is None:
-        train_env_kwargs = training_env_kwargs(variant, env_kwargs)
-        env = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=train_env_kwargs)
-        env = VecNormalize(env, gamma=params.get("gamma", 0.99)) if normalize else env
+    params, n_envs, normalize, _, env_kwargs = model_settings(algo, env_id, overrides)
+    env = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=training_env_kwargs(variant, env_kwargs))
+    return VecNormalize(env, gamma=params.get("gamma", 0.99)) if normalize else env
+
+
+def new_model(env_id: str, variant: str, seed: int, env: Any = None) -> Any:
+    """A new model of ``variant`` (zoo settings plus its switches) on ``env``, or on ``training_envs``."""
+    algo, overrides = VARIANTS[variant]
+    params, _, _, policy, _ = model_settings(algo, env_id, overrides)
+    env = training_envs(env_id, variant, seed) if env is None else env
     return algorithm_class(variant)(policy, env, seed=seed, device="cpu", **params)
 
 

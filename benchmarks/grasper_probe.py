@@ -49,14 +49,13 @@ from typing import Any, NamedTuple
 import gymnasium as gym
 import mujoco
 import numpy as np
-from convergence import add_run_arguments, algorithm_class  # benchmarks/ is on sys.path when this file runs as a script
+from convergence import OUT, add_run_arguments, algorithm_class, job_folder  # benchmarks/ is on sys.path
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import grasp_envs  # noqa: F401
 from grasp_envs import grasper3d_v4, grasper3d_v6
 from grasp_envs.scripted import grasper3d_policy
 
-ROOT = Path(__file__).resolve().parents[1]
 PROBE_SEED = 30_000
 HELD_OUT_SEED = 10_000  # benchmarks/convergence.py's EVAL_SEED: far from the training envs' seeds
 SECTORS = (  # |bearing| ranges in degrees
@@ -353,7 +352,7 @@ def main() -> None:
     parser.add_argument("--losses", action="store_true", help="how the lifted cubes are lost")
     parser.add_argument("--what-if", action="store_true", help="the losses under other physics settings")
     args = parser.parse_args()
-    folder = ROOT / "benchmarks" / "results" / "convergence" / args.env / args.variant / f"seed{args.seed}"
+    folder = job_folder(OUT, args.env, args.variant, args.seed)
     if not (folder / "model.zip").exists():
         raise SystemExit(f"{folder}: no model.zip (run benchmarks/convergence.py first; checkpoints are not committed)")
     model = algorithm_class(args.variant).load(folder / "model.zip", device="cpu")

@@ -64,7 +64,7 @@ def compare_starts(
 
 
 def _model(env_id: str, variant: str, seed: int, from_run: bool) -> Any:
-    from convergence import OUT, algorithm_class, job_folder, new_model  # benchmarks/ is on sys.path
+    from convergence import OUT, algorithm_class, job_folder, new_model, training_envs  # benchmarks/ is on sys.path
 
     if not from_run:
         return new_model(env_id, variant, seed)
@@ -73,7 +73,7 @@ def _model(env_id: str, variant: str, seed: int, from_run: bool) -> Any:
     folder = job_folder(OUT, env_id, variant, seed)
     if not (folder / "model.zip").exists():
         raise FileNotFoundError(f"{folder} has no model.zip (checkpoints stay on the machine that trained them)")
-    env = new_model(env_id, variant, seed).get_env()  # the variant's training envs, seeded like the run's
+    env = training_envs(env_id, variant, seed)
     if isinstance(env, VecNormalize):
         env = VecNormalize.load(str(folder / "vecnormalize.pkl"), env.venv)
     return algorithm_class(variant).load(folder / "model.zip", env=env, device="cpu")
