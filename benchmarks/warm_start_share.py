@@ -81,10 +81,12 @@ def _model(env_id: str, variant: str, seed: int, from_run: bool) -> Any:
 
 def measure(env_id: str, variant: str, seed: int, steps: int, from_run: bool, raw: bool) -> dict[str, Any]:
     """Train ``steps`` with the warm start on (``raw``: unscaled) and return the figures of every warm-started update."""
+    from convergence import VARIANTS  # benchmarks/ is on sys.path
+
+    if VARIANTS[variant][0] != "trpo_plus":
+        raise ValueError(f"variant {variant!r} is not trained by TRPOPlus (its algorithm: {VARIANTS[variant][0]})")
     th.set_num_threads(1)
     model = _model(env_id, variant, seed, from_run)
-    if not hasattr(model, "cg_warm_start"):
-        raise ValueError(f"variant {variant!r} is not trained by TRPOPlus")
     model.cg_warm_start, model.cg_warm_start_rescale = True, not raw
     rows: list[dict[str, float]] = []
     solve = trpo_plus_module.conjugate_gradient
@@ -92,7 +94,7 @@ def measure(env_id: str, variant: str, seed: int, steps: int, from_run: bool, ra
     def solve_and_compare(fvp: Any, b: th.Tensor, x0: th.Tensor | None = None, **kwargs: Any) -> Any:
         result = solve(fvp, b, x0, **kwargs)
         if x0 is not None and bool(th.any(x0 != 0)):
-            rows.append(compare_starts(fvp, b, x0, result, kwargs.get("max_iter", 10), not raw))
+            rows.append(compare_starts(fvp, b, x0, result, kwargs["max_iter"], not raw))  # TRPOPlus passes cg_max_steps
         return result
 
     trpo_plus_module.conjugate_gradient = solve_and_compare  # type: ignore[assignment]
