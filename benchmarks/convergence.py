@@ -45,6 +45,7 @@ BUDGETS = {
     "Grasper3D-v4": 5_000_000,
     "Grasper3D-v5": 5_000_000,
     "Grasper3D-v6": 5_000_000,
+    "Grasper3D-v7": 5_000_000,
 }
 TARGETS = {
     "Reacher2D-v0": 0.9,
@@ -59,6 +60,7 @@ TARGETS = {
     "Grasper3D-v4": 0.9,
     "Grasper3D-v5": 0.9,
     "Grasper3D-v6": 0.9,
+    "Grasper3D-v7": 0.9,
 }
 # the thesis' two switches; the variants below change one setting on top of one of these
 PLAIN: dict[str, Any] = {"replay_memory": 0, "cg_warm_start": False}
