@@ -45,7 +45,6 @@ BUDGETS = {
     "Grasper3D-v4": 5_000_000,
     "Grasper3D-v5": 5_000_000,
     "Grasper3D-v6": 5_000_000,
-    "Grasper3D-v7": 5_000_000,
 }
 TARGETS = {
     "Reacher2D-v0": 0.9,
@@ -60,7 +59,6 @@ TARGETS = {
     "Grasper3D-v4": 0.9,
     "Grasper3D-v5": 0.9,
     "Grasper3D-v6": 0.9,
-    "Grasper3D-v7": 0.9,
 }
 # the thesis' two switches; the variants below change one setting on top of one of these
 PLAIN: dict[str, Any] = {"replay_memory": 0, "cg_warm_start": False}
@@ -155,6 +153,14 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # Grasper3D-v6, session 22: its first form let the cube turn about every axis (a ball joint), and the claw tumbled
     # it on the floor; the registered v6 turns it about the vertical only
     "plain_scripted25_late_freecube": ("trpo_plus", {**PLAIN, "env_kwargs": {"cube_rotation": "free"}}),
+    # Grasper3D-v6, session 24: a grip twice as fast (max_grip_speed 0.8 m/s; 0.4 moves it 8 mm per step), so that the
+    # cubes behind the shoulder, farthest from the arm's start, are reached sooner; and so with half the initial std
+    # (0.5, log_std_init -0.69), the same exploration noise in m/s as at 0.4. Both learned slower: not a new version
+    "warm_scripted25_late_speed08": ("trpo_plus", {**WARM, "env_kwargs": {"max_grip_speed": 0.8}}),
+    "warm_scripted25_late_speed08_std05": (
+        "trpo_plus",
+        {**WARM, "env_kwargs": {"max_grip_speed": 0.8}, "policy_kwargs": {"log_std_init": -0.69}},
+    ),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (

@@ -60,6 +60,10 @@ LABELS = {
     "plain_scripted25_late_net256": "TRPOPlus plain, 25 % scripted starts 50-99 steps along, 256 x 256 policy",
     "plain_scripted50_late": "TRPOPlus plain, 50 % scripted starts 50-99 steps along the grasp",
     "plain_scripted25_late_freecube": "TRPOPlus plain, 25 % scripted starts 50-99 steps along, a cube that can tip over",
+    "warm_scripted25_late_speed08": "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, grip at 0.8 m/s",
+    "warm_scripted25_late_speed08_std05": (
+        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, grip at 0.8 m/s, initial std 0.5"
+    ),
     "warm_scripted25_vf3e4": "TRPOPlus + warm start, 25 % scripted starts, critic step size 3e-4",
     "ppo_scripted25_e1": "SB3 PPO, 25 % scripted starts, 1 epoch per batch",
     "warm_sde": "TRPOPlus + warm start, gSDE",

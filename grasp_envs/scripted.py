@@ -103,5 +103,4 @@ SCRIPTED_POLICIES = {
     "Grasper3D-v4": grasper3d_policy,
     "Grasper3D-v5": grasper3d_policy,
     "Grasper3D-v6": grasper3d_policy,
-    "Grasper3D-v7": grasper3d_policy,
 }

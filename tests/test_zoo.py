@@ -45,7 +45,6 @@ def test_all_envs_have_entries_in_every_file() -> None:
         "Grasper3D-v4",
         "Grasper3D-v5",
         "Grasper3D-v6",
-        "Grasper3D-v7",
         "WallReacher3D-v0",
         "Reacher-v5",
         "Pendulum-v1",
