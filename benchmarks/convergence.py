@@ -255,6 +255,13 @@ def training_env_kwargs(variant: str, env_kwargs: dict[str, Any] | None) -> dict
     return {**(env_kwargs or {}), **TRAIN_ENV_KWARGS.get(variant, {})}
 
 
+def evaluation_env_kwargs(env_id: str, variant: str) -> dict[str, Any]:
+    """The kwargs of ``variant``'s evaluation envs on ``env_id``, as ``run_job`` makes them: the YAML's env_kwargs, or
+    the variant's own where it sets them (its training envs add TRAIN_ENV_KWARGS on top)."""
+    algo, overrides = VARIANTS[variant]
+    return dict(model_settings(algo, env_id, overrides)[4] or {})
+
+
 def training_envs(env_id: str, variant: str, seed: int) -> Any:
     """New unmonitored training envs of ``variant`` seeded with ``seed``, for the diagnostic scripts: the variant's
     training-env kwargs, VecNormalize where the YAML asks for it. ``run_job`` builds its own (it monitors episodes)."""

@@ -49,7 +49,13 @@ from typing import Any, NamedTuple
 import gymnasium as gym
 import mujoco
 import numpy as np
-from convergence import OUT, add_run_arguments, algorithm_class, job_folder  # benchmarks/ is on sys.path
+from convergence import (  # benchmarks/ is on sys.path
+    OUT,
+    add_run_arguments,
+    algorithm_class,
+    evaluation_env_kwargs,
+    job_folder,
+)
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import grasp_envs  # noqa: F401
@@ -188,12 +194,14 @@ def held_out_episodes(
     return learned, scripted
 
 
-def failures(model: Any, env_id: str, folder: Path, episodes: int) -> None:
-    """Print the ``--failures`` tables for the saved policy and for the scripted grasp."""
+def failures(model: Any, env_id: str, folder: Path, episodes: int, env_kwargs: dict[str, Any]) -> None:
+    """Print the ``--failures`` tables for the saved policy and for the scripted grasp (both on ``env_id`` made with
+    ``env_kwargs``, the run's evaluation kwargs)."""
     registered = gym.spec(env_id).max_episode_steps
     assert registered is not None
     steps, checks = 2 * registered, (registered, registered * 3 // 2, 2 * registered)
-    env, scripted_env = saved_env(folder, env_id, max_episode_steps=steps), gym.make(env_id, max_episode_steps=steps)
+    kwargs = {**env_kwargs, "max_episode_steps": steps}
+    env, scripted_env = saved_env(folder, env_id, **kwargs), gym.make(env_id, **kwargs)
     learned, scripted = held_out_episodes(model, env, scripted_env, episodes, steps, checks)
     header = " / ".join(str(t) for t in checks)
     for name, group in (("the saved policy (deterministic)", learned), ("the scripted grasp", scripted)):
@@ -227,11 +235,11 @@ def success_parts(arm: Any) -> dict[str, bool]:
     )
 
 
-def losses(model: Any, env_id: str, folder: Path, episodes: int) -> None:
+def losses(model: Any, env_id: str, folder: Path, episodes: int, env_kwargs: dict[str, Any]) -> None:
     """Print the ``--losses`` table: one row per held-out episode that lifts the cube and loses it."""
     registered = gym.spec(env_id).max_episode_steps
     assert registered is not None
-    env = saved_env(folder, env_id, max_episode_steps=registered)
+    env = saved_env(folder, env_id, **env_kwargs, max_episode_steps=registered)
     arm = env.venv.envs[0].unwrapped  # type: ignore[attr-defined]
     print(f"\nthe saved policy (deterministic), {episodes} held-out resets from seed {HELD_OUT_SEED}\n")
     print(
@@ -318,7 +326,7 @@ def _outcomes(model: Any, env: VecNormalize, scripted_env: gym.Env, episodes: in
     return [group.count(kind) for group in kinds for kind in ("lifted", "lifted and lost")]
 
 
-def what_if(model: Any, env_id: str, folder: Path, episodes: int) -> None:
+def what_if(model: Any, env_id: str, folder: Path, episodes: int, env_kwargs: dict[str, Any]) -> None:
     """Print the ``--what-if`` table: the policy and the scripted grasp under each change of WHAT_IF."""
     registered = gym.spec(env_id).max_episode_steps
     assert registered is not None
@@ -330,7 +338,7 @@ def what_if(model: Any, env_id: str, folder: Path, episodes: int) -> None:
     print("|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         for change, (edit, substeps, rotation) in WHAT_IF.items():
-            kwargs: dict[str, Any] = {"max_episode_steps": registered}
+            kwargs: dict[str, Any] = {**env_kwargs, "max_episode_steps": registered}
             if rotation is not None:
                 kwargs["xml_file"] = turning_cube_xml(env_id, Path(tmp), rotation)
             env, scripted_env = saved_env(folder, env_id, **kwargs), gym.make(env_id, **kwargs)
@@ -356,15 +364,16 @@ def main() -> None:
     if not (folder / "model.zip").exists():
         raise SystemExit(f"{folder}: no model.zip (run benchmarks/convergence.py first; checkpoints are not committed)")
     model = algorithm_class(args.variant).load(folder / "model.zip", device="cpu")
+    env_kwargs = evaluation_env_kwargs(args.env, args.variant)  # e.g. a variant's max_grip_speed
     if args.failures:
         print(f"{args.env} {args.variant} seed {args.seed}")
-        failures(model, args.env, folder, args.episodes)
+        failures(model, args.env, folder, args.episodes, env_kwargs)
         return
     if args.losses or args.what_if:
         print(f"{args.env} {args.variant} seed {args.seed}")
-        (losses if args.losses else what_if)(model, args.env, folder, args.episodes)
+        (losses if args.losses else what_if)(model, args.env, folder, args.episodes, env_kwargs)
         return
-    env = saved_env(folder, args.env)
+    env = saved_env(folder, args.env, **env_kwargs)
     print(f"{args.env} {args.variant} seed {args.seed}, {args.episodes} episodes from reset seed {PROBE_SEED}\n")
     print("| policy | vertical command after the grasp | return | final success |")
     print("|---|---|---|---|")
