@@ -53,6 +53,23 @@ def test_scripted_start_variants_change_the_training_envs_only(variant: str) -> 
     assert "scripted_start_prob" not in convergence.training_env_kwargs(variant, yaml_env_kwargs)
 
 
+def test_evaluation_env_kwargs_are_the_variants_own_for_training_and_evaluation() -> None:
+    """A variant's env_kwargs (here v6's grip speed, or its cube's joint) make both its evaluation envs and, under the
+    scripted starts, its training envs; the diagnostic scripts read the evaluation kwargs from here."""
+    assert convergence.evaluation_env_kwargs("Grasper3D-v6", "warm_scripted25_late") == {}
+    for variant, kwargs in (
+        ("warm_scripted25_late_speed08", {"max_grip_speed": 0.8}),
+        ("warm_scripted25_late_speed08_std05", {"max_grip_speed": 0.8}),
+        ("plain_scripted25_late_freecube", {"cube_rotation": "free"}),
+    ):
+        assert convergence.evaluation_env_kwargs("Grasper3D-v6", variant) == kwargs
+        training = convergence.training_env_kwargs(variant, kwargs)
+        assert training == {**kwargs, **convergence.SCRIPTED25_LATE}
+        env = gym.make("Grasper3D-v6", **training)
+        assert env.unwrapped.max_grip_speed == kwargs.get("max_grip_speed", 0.4)  # type: ignore[attr-defined]
+        env.close()
+
+
 @pytest.mark.parametrize("variant", sorted(convergence.TRAIN_ENV_KWARGS))
 def test_training_env_kwargs_are_accepted_by_the_env(variant: str) -> None:
     assert variant in convergence.VARIANTS
