@@ -359,8 +359,9 @@ def main() -> None:
     parser.add_argument("--failures", action="store_true", help="where and how the held-out episodes fail")
     parser.add_argument("--losses", action="store_true", help="how the lifted cubes are lost")
     parser.add_argument("--what-if", action="store_true", help="the losses under other physics settings")
+    parser.add_argument("--runs", type=Path, default=OUT, help="the runs' folder (benchmarks/convergence.py's --out)")
     args = parser.parse_args()
-    folder = job_folder(OUT, args.env, args.variant, args.seed)
+    folder = job_folder(args.runs, args.env, args.variant, args.seed)
     if not (folder / "model.zip").exists():
         raise SystemExit(f"{folder}: no model.zip (run benchmarks/convergence.py first; checkpoints are not committed)")
     model = algorithm_class(args.variant).load(folder / "model.zip", device="cpu")
