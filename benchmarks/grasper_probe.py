@@ -239,7 +239,7 @@ def losses(model: Any, env_id: str, folder: Path, episodes: int, env_kwargs: dic
     """Print the ``--losses`` table: one row per held-out episode that lifts the cube and loses it."""
     registered = gym.spec(env_id).max_episode_steps
     assert registered is not None
-    env = saved_env(folder, env_id, **env_kwargs, max_episode_steps=registered)
+    env = saved_env(folder, env_id, **{**env_kwargs, "max_episode_steps": registered})
     arm = env.venv.envs[0].unwrapped  # type: ignore[attr-defined]
     print(f"\nthe saved policy (deterministic), {episodes} held-out resets from seed {HELD_OUT_SEED}\n")
     print(

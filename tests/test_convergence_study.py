@@ -62,8 +62,9 @@ def test_evaluation_env_kwargs_are_the_variants_own_for_training_and_evaluation(
         ("warm_scripted25_late_speed08_std05", {"max_grip_speed": 0.8}),
         ("plain_scripted25_late_freecube", {"cube_rotation": "free"}),
     ):
-        assert convergence.evaluation_env_kwargs("Grasper3D-v6", variant) == kwargs
-        training = convergence.training_env_kwargs(variant, kwargs)
+        evaluation = convergence.evaluation_env_kwargs("Grasper3D-v6", variant)
+        assert evaluation == kwargs
+        training = convergence.training_env_kwargs(variant, evaluation)  # run_job's training envs
         assert training == {**kwargs, **convergence.SCRIPTED25_LATE}
         env = gym.make("Grasper3D-v6", **training)
         assert env.unwrapped.max_grip_speed == kwargs.get("max_grip_speed", 0.4)  # type: ignore[attr-defined]
