@@ -161,6 +161,10 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
         "trpo_plus",
         {**WARM, "env_kwargs": {"max_grip_speed": 0.8}, "policy_kwargs": {"log_std_init": -0.69}},
     ),
+    # Grasper3D-v6, session 25: the arm starts in a ready pose above the cubes (start_pose "ready": forearm down, the grip
+    # 8.7 cm out along +x) instead of stretched along +x, 0.3 m from a cube behind the shoulder; the scripted grasp from
+    # there touches every cube by step 57 (stretched: up to step 98, and 16 % of the cubes behind not lifted by step 100)
+    "warm_scripted25_late_ready": ("trpo_plus", {**WARM, "env_kwargs": {"start_pose": "ready"}}),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (

@@ -64,6 +64,9 @@ LABELS = {
     "warm_scripted25_late_speed08_std05": (
         "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, grip at 0.8 m/s, initial std 0.5"
     ),
+    "warm_scripted25_late_ready": (
+        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, the arm starting in a ready pose"
+    ),
     "warm_scripted25_vf3e4": "TRPOPlus + warm start, 25 % scripted starts, critic step size 3e-4",
     "ppo_scripted25_e1": "SB3 PPO, 25 % scripted starts, 1 epoch per batch",
     "warm_sde": "TRPOPlus + warm start, gSDE",

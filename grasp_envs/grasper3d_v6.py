@@ -21,6 +21,14 @@ CUBE_ROTATIONS: dict[str, dict[str, Any]] = {
     "yaw": {"type": mujoco.mjtJoint.mjJNT_HINGE, "axis": [0.0, 0.0, 1.0]},
     "free": {"type": mujoco.mjtJoint.mjJNT_BALL},
 }
+# start_pose -> the arm's joint angles before the reset noise (shoulder_y, shoulder_z, elbow_y, elbow_z, forearm_roll):
+# "stretched", the thesis' (horizontal along +x); "ready", the upper arm pitched 30 deg up and the forearm pointing
+# down, the grip 8.7 cm out along +x and 6.6 cm above the cube's top face, as manipulation benchmarks start
+# (Gymnasium Robotics' Fetch: the gripper above the table)
+START_POSES: dict[str, tuple[float, ...]] = {
+    "stretched": (0.0, 0.0, 0.0, 0.0, 0.0),
+    "ready": (-np.pi / 6, 0.0, 2 * np.pi / 3, 0.0, 0.0),
+}
 ORIENTATION_ROWS = (
     "cube x axis x (unit vector along the cube's edge that starts along world x) | unitless",
     "cube x axis y | unitless",
@@ -37,6 +45,7 @@ def _v6_docstring(v5_doc: str) -> str:
     last_row = "    | 25 | claw servo torque on `claw_right` (positive closes) | N m |"
     rows = "".join(f"\n    | {26 + i} | {row} |" for i, row in enumerate(ORIENTATION_ROWS))
     last_argument = "where it often slips out |"
+    start = "## Starting State\n    Arm horizontal along +x, claw closed,"
     replacements = {
         "## Description\n    Grasper3D-v4 observing the task space only": (
             "## Description\n    Grasper3D-v5 with a cube that can turn about the vertical. Grasper3D-v4 observing the"
@@ -52,7 +61,11 @@ def _v6_docstring(v5_doc: str) -> str:
         ),
         last_argument: last_argument
         + '\n    | `cube_rotation` | `"yaw"` | how the cube can turn: `"yaw"` about the vertical through its centre (it stays'
-        ' upright), `"free"` about every axis (a ball joint: it can also tip over) |',
+        ' upright), `"free"` about every axis (a ball joint: it can also tip over) |'
+        + '\n    | `start_pose` | `"stretched"` | the arm\'s pose before the reset noise: `"stretched"` horizontal along +x'
+        ' (the thesis\'), `"ready"` the upper arm 30° up and the forearm pointing down, the grip 8.7 cm out along +x'
+        " and 6.6 cm above the cube's top |",
+        start: "## Starting State\n    Arm horizontal along +x (`start_pose`), claw closed,",
     }
     return derived_docstring(
         v5_doc,
@@ -72,13 +85,16 @@ class Grasper3DEnv(grasper3d_v5.Grasper3DEnv):
 
     observation_dim = 32  # v5's 26 and the cube's x and z axes
 
-    def __init__(self, cube_rotation: str = "yaw", **kwargs: Any):
-        """v5's arguments (keywords) and ``cube_rotation`` (see the class docstring)."""
+    def __init__(self, cube_rotation: str = "yaw", start_pose: str = "stretched", **kwargs: Any):
+        """v5's arguments (keywords), ``cube_rotation`` and ``start_pose`` (see the class docstring)."""
         if cube_rotation not in CUBE_ROTATIONS:
             raise ValueError(f"cube_rotation must be one of {sorted(CUBE_ROTATIONS)}, got {cube_rotation!r}")
+        if start_pose not in START_POSES:
+            raise ValueError(f"start_pose must be one of {sorted(START_POSES)}, got {start_pose!r}")
         self._cube_rotation = cube_rotation  # read while the base class builds the model
         super().__init__(**kwargs)
-        utils.EzPickle.__init__(self, cube_rotation=cube_rotation, **kwargs)
+        self.init_qpos[self._arm_qpos] = START_POSES[start_pose]
+        utils.EzPickle.__init__(self, cube_rotation=cube_rotation, start_pose=start_pose, **kwargs)
 
     def _initialize_simulation(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
         """v5's model (``xml_file``) with the cube's rotation joint (``add_cube_rotation``)."""
