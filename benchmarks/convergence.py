@@ -25,6 +25,7 @@ import sys
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +61,23 @@ TARGETS = {
     "Grasper3D-v5": 0.9,
     "Grasper3D-v6": 0.9,
 }
+
+
+@dataclass(frozen=True)
+class HoldThenShrink:
+    """A ``target_kl`` schedule: ``start`` until ``hold`` of the run is done, then linear to ``end`` at its end."""
+
+    start: float
+    end: float
+    hold: float
+
+    def __call__(self, progress_remaining: float) -> float:
+        done = 1.0 - progress_remaining
+        if done <= self.hold:
+            return self.start
+        return self.start + (self.end - self.start) * (done - self.hold) / (1.0 - self.hold)
+
+
 # the thesis' two switches; the variants below change one setting on top of one of these
 PLAIN: dict[str, Any] = {"replay_memory": 0, "cg_warm_start": False}
 REPLAY: dict[str, Any] = {"replay_memory": 3, "cg_warm_start": False}
@@ -165,6 +183,15 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # 8.7 cm out along +x) instead of stretched along +x, 0.3 m from a cube behind the shoulder; the scripted grasp from
     # there touches every cube by step 57 (stretched: up to step 98, and 16 % of the cubes behind not lifted by step 100)
     "warm_scripted25_late_ready": ("trpo_plus", {**WARM, "env_kwargs": {"start_pose": "ready"}}),
+    # Grasper3D-v6, session 25: the policies' evaluations keep swinging between 0.7 and 1.0 after 2M, each update moving
+    # the policy by the same KL; a trust region that shrinks from 0.01 after 2M to 0.001 at 5M lets it settle, as
+    # PPO's zoo settings anneal the learning rate (TRPOPlus' target_kl accepts a schedule, as learning_rate does)
+    "warm_scripted25_late_klshrink": ("trpo_plus", {**WARM, "target_kl": HoldThenShrink(0.01, 0.001, 0.4)}),
+    # ... with the ready pose; its runs branch at 2M from warm_scripted25_late_ready's checkpoints (copied)
+    "warm_scripted25_late_ready_klshrink": (
+        "trpo_plus",
+        {**WARM, "env_kwargs": {"start_pose": "ready"}, "target_kl": HoldThenShrink(0.01, 0.001, 0.4)},
+    ),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (
@@ -340,7 +367,10 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
     model_path, stats_path = folder / "model.zip", folder / "vecnormalize.pkl"
     if rows:
         env = VecNormalize.load(str(stats_path), venv) if normalize else venv
-        model = algo_class.load(model_path, env=env, device="cpu")
+        # a variant's own target_kl (a schedule, say) applies to a checkpoint it resumes, so that a run can branch
+        # from another variant's checkpoint; every other setting is the checkpoint's
+        branch = {"target_kl": overrides["target_kl"]} if "target_kl" in overrides else None
+        model = algo_class.load(model_path, env=env, device="cpu", custom_objects=branch)
         model.__dict__.pop("train", None)  # checkpoints saved before 2026-11-22 03:50 pickled the wrapper below
     else:
         env = VecNormalize(venv, gamma=params.get("gamma", 0.99)) if normalize else venv
@@ -348,9 +378,8 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
     eval_env = make_vec_env(env_id, n_envs=1, seed=EVAL_SEED, env_kwargs=env_kwargs)
     if normalize:
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False)
-    target_kl = float(getattr(model, "target_kl", None) or float("nan"))
-
     diagnostics: dict[str, list[float]] = {name: [] for name in DIAGNOSTICS}
+    overshoots: list[float] = []  # each TRPO update's KL over its trust region's radius
     original_train = model.train
 
     def train_and_record() -> None:  # the update's logged values, read before SB3 dumps the logger
@@ -359,8 +388,13 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
         for name, key in DIAGNOSTICS.items():
             if key in values:
                 diagnostics[name].append(float(values[key]))
+        # TRPOPlus logs each update's radius (target_kl may be a schedule); sb3-contrib's TRPO has a constant one
+        radius = float(values.get("train/target_kl", getattr(model, "target_kl", None) or 0.0))
+        if radius > 0 and "train/kl_divergence_loss" in values:
+            overshoots.append(float(values["train/kl_divergence_loss"]) / radius)
 
     model.train = train_and_record  # type: ignore[method-assign]
+    progress_over_budget(model, max(BUDGETS.get(env_id, steps), steps))
 
     chunk = max(steps // CHUNKS, 1)
     seconds = rows[-1]["train_seconds"] if rows else 0.0
@@ -377,7 +411,8 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
         returns = [r for r, _, _ in recorder.episodes]
         successes = [float(s) for _, s, _ in recorder.episodes]
         means = {name: float(np.mean(v)) if v else float("nan") for name, v in diagnostics.items()}
-        kls = list(diagnostics["kl"])
+        overshoot = max(overshoots) if overshoots else float("nan")
+        overshoots.clear()
         for values in diagnostics.values():
             values.clear()
         row = {
@@ -385,16 +420,31 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
             "eval_return": round(eval_return, 4), "train_success": float(np.mean(successes)) if successes else float("nan"),
             "train_return": round(float(np.mean(returns)), 4) if returns else float("nan"), "train_episodes": len(returns),
             **{k: round(v, 5) for k, v in means.items()},
-            "kl_overshoot": round(max(kls) / target_kl, 4) if kls and np.isfinite(target_kl) else float("nan"),
+            "kl_overshoot": round(overshoot, 4),
             "resumed": resumed,
         }  # fmt: skip
         resumed = 0.0
-        _atomic_replace(lambda p: model.save(p, exclude=["train"]), model_path)  # not the wrapper of train()
+        # not the wrappers of train() and of the progress
+        _atomic_replace(lambda p: model.save(p, exclude=["train", "_update_current_progress_remaining"]), model_path)
         if normalize:
             _atomic_replace(lambda p: env.save(str(p)), stats_path)  # type: ignore[attr-defined]
         _append_row(folder / "progress.csv", row)
     env.close()
     eval_env.close()
+
+
+def progress_over_budget(model: Any, budget: int) -> None:
+    """Make ``model``'s remaining progress (what SB3's schedules read) ``1 - timesteps / budget``.
+
+    SB3 measures it against the ``total_timesteps`` of the running ``learn`` call; a job learns in chunks, and
+    may stop at ``--steps`` and later resume to the budget, so a schedule would restart with every chunk. Against
+    the env's study budget, it runs once over the whole run, however the run is cut.
+    """
+
+    def update(num_timesteps: int, total_timesteps: int) -> None:
+        model._current_progress_remaining = 1.0 - float(num_timesteps) / float(budget)
+
+    model._update_current_progress_remaining = update
 
 
 def _append_row(path: Path, row: dict[str, Any]) -> None:

@@ -41,7 +41,7 @@ class MultiStepTRPOPlus(TRPOPlus):
         distribution: Distribution = self.policy.get_distribution(batch.observations)
         anchor = detached_distribution(distribution)  # the rollout's policy: the trust region's centre
         advantages, ess = self._step_advantages(batch, distribution.log_prob(actions).detach())
-        step_kl = self.target_kl / self.n_policy_steps
+        step_kl = self.current_target_kl / self.n_policy_steps
         results: list[LineSearchResult] = []
         moved: np.ndarray | None = None
         for step in range(self.n_policy_steps):

@@ -84,7 +84,7 @@ def validate_hyperparameters(
     line_search_shrinking_factor: float,
     line_search_max_iter: int,
     n_critic_updates: int,
-    target_kl: float,
+    target_kl: float | Schedule,
     sub_sampling_factor: int,
     fisher_sub_sampling: int,
     replay_memory: int,
@@ -122,7 +122,13 @@ def validate_hyperparameters(
     need(
         is_real(cg_damping) and math.isfinite(cg_damping) and cg_damping >= 0, "cg_damping", cg_damping, "a finite number >= 0"
     )
-    need(is_real(target_kl) and math.isfinite(target_kl) and target_kl > 0, "target_kl", target_kl, "a finite number > 0")
+    if not callable(target_kl):
+        need(
+            is_real(target_kl) and math.isfinite(target_kl) and target_kl > 0,
+            "target_kl",
+            target_kl,
+            "a finite number > 0 or a schedule",
+        )
     need(
         is_real(line_search_shrinking_factor) and 0.0 < line_search_shrinking_factor < 1.0,
         "line_search_shrinking_factor",
@@ -178,7 +184,9 @@ class TRPOPlus(TRPO):
     :param rollout_buffer_class: Rollout buffer class (default: SB3's ``RolloutBuffer``)
     :param rollout_buffer_kwargs: Keyword arguments for the rollout buffer
     :param normalize_advantage: Normalise advantages over the update batch (current + replayed samples)
-    :param target_kl: Trust-region radius ``delta``: maximum mean KL between successive policies (thesis: 0.01)
+    :param target_kl: Trust-region radius ``delta``: maximum mean KL between successive policies (thesis: 0.01),
+        or a schedule of the remaining progress (1 to 0), as SB3 takes for ``learning_rate``: each update uses
+        its value then (logged as ``train/target_kl``); a shrinking radius lets the policy settle
     :param sub_sampling_factor: Use every n-th sample of the update batch for the policy step (Schulman's thesis p.40)
     :param fisher_sub_sampling: Estimate the Fisher matrix (the CG products) on every n-th sample of the update
         batch only (1: all samples). The gradient, KL and line search still use every sample. With a replay
@@ -227,7 +235,7 @@ class TRPOPlus(TRPO):
         rollout_buffer_class: type[RolloutBuffer] | None = None,
         rollout_buffer_kwargs: dict[str, Any] | None = None,
         normalize_advantage: bool = True,
-        target_kl: float = 0.01,
+        target_kl: float | Schedule = 0.01,
         sub_sampling_factor: int = 1,
         fisher_sub_sampling: int = 1,
         replay_memory: int = 0,
@@ -266,7 +274,8 @@ class TRPOPlus(TRPO):
             n_critic_updates=n_critic_updates, gae_lambda=gae_lambda, use_sde=use_sde,
             sde_sample_freq=sde_sample_freq, rollout_buffer_class=rollout_buffer_class,
             rollout_buffer_kwargs=rollout_buffer_kwargs, normalize_advantage=normalize_advantage,
-            target_kl=target_kl, sub_sampling_factor=sub_sampling_factor, stats_window_size=stats_window_size,
+            target_kl=target_kl,  # type: ignore[arg-type]  # a schedule too (sb3-contrib's TRPO only stores it)
+            sub_sampling_factor=sub_sampling_factor, stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose, seed=seed,
             device=device, _init_setup_model=False,
         )  # fmt: skip
@@ -301,6 +310,7 @@ class TRPOPlus(TRPO):
 
     def _setup_model(self) -> None:
         super()._setup_model()
+        self._update_target_kl()
         self._actor_params = actor_parameters(self.policy)  # type: ignore[arg-type]
         memory = getattr(self, "rollout_memory", None)
         self.rollout_memory = deque(memory or [], maxlen=max(self.replay_memory, 1))
@@ -446,6 +456,7 @@ class TRPOPlus(TRPO):
         start = time.perf_counter()
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
+        self._update_target_kl()
         if self.value_baseline == "linear":
             self._write_linear_baseline_advantages()
         # Re-evaluate the stored rollouts once: the value function does not change before the critic fit
@@ -458,6 +469,17 @@ class TRPOPlus(TRPO):
         self._replayed = []
         self._n_updates += 1
         self._log_update(batch, line_search, value_loss, skipped_critic_steps, time.perf_counter() - start)
+
+    def _update_target_kl(self) -> None:
+        """This update's trust-region radius, ``target_kl`` at the remaining progress (constant unless a schedule)."""
+        schedule = self.target_kl
+        value = float(schedule(self._current_progress_remaining) if callable(schedule) else schedule)
+        if not (math.isfinite(value) and value >= 0):
+            raise ValueError(
+                f"TRPOPlus hyperparameter `target_kl`: its schedule gave {value!r} at remaining progress "
+                f"{self._current_progress_remaining:.4f}; it must give finite numbers >= 0"
+            )
+        self.current_target_kl = value
 
     def _value_function(self, observations: np.ndarray, timesteps: np.ndarray) -> np.ndarray:
         """Current value estimate on flat normalised observations (critic or linear baseline)."""
@@ -534,7 +556,7 @@ class TRPOPlus(TRPO):
         anchor = detached_distribution(distribution)
         advantages, ess = self._step_advantages(batch, distribution.log_prob(actions).detach())
         return self._natural_gradient_step(
-            batch, distribution, actions, advantages, anchor, self.target_kl, self._warm_start, ess
+            batch, distribution, actions, advantages, anchor, self.current_target_kl, self._warm_start, ess
         )
 
     def _step_advantages(self, batch: PolicyBatch, log_prob: th.Tensor) -> tuple[th.Tensor, float]:
@@ -562,7 +584,7 @@ class TRPOPlus(TRPO):
 
         Gradient of the importance-weighted surrogate and Fisher matrix at ``distribution`` (the policy at the
         current parameters, with its graph), CG started from ``warm_start(gradient)``, a full step of quadratic
-        KL ``step_kl``, and a line search that keeps the KL to ``anchor`` within ``target_kl``. Records the CG
+        KL ``step_kl``, and a line search that keeps the KL to ``anchor`` within ``current_target_kl``. Records the CG
         statistics, and the step for the next update's warm start.
         """
         log_prob = distribution.log_prob(actions)
@@ -589,7 +611,7 @@ class TRPOPlus(TRPO):
             return float(new_objective), float(kl)
 
         result = backtracking_line_search(
-            self._actor_params, full_step, evaluate, float(objective.detach()), self.target_kl,
+            self._actor_params, full_step, evaluate, float(objective.detach()), self.current_target_kl,
             self.line_search_shrinking_factor, self.line_search_max_iter,
         )  # fmt: skip
         self.previous_step = (result.coefficient * full_step).cpu().numpy() if result.accepted else None
@@ -682,6 +704,7 @@ class TRPOPlus(TRPO):
         record("train/policy_objective", line_search.objective if line_search.accepted else stats["objective_before"])
         record("train/value_loss", value_loss)
         record("train/kl_divergence_loss", line_search.kl)
+        record("train/target_kl", self.current_target_kl)
         record(
             "train/explained_variance",
             explained_variance(self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten()),

@@ -192,3 +192,34 @@ def test_warm_start_share_measures_every_warm_started_update_and_restores_the_so
     assert len(result["updates"]) == 2
     for row in result["updates"]:
         assert -1.0 <= row["solution_cosine"] <= 1.0 + 1e-6 and row["start_share"] >= 0.0
+
+
+def test_a_branched_run_takes_its_variants_target_kl_schedule_over_the_budget(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A job that resumes another variant's checkpoint (copied into its folder) trains on with its own target_kl
+    schedule, and the schedule reads the progress against the env's study budget, not the chunk being learned."""
+    import shutil
+
+    from sb3_trpo_plus import TRPOPlus
+
+    shrink = convergence.HoldThenShrink(0.01, 0.001, 0.5)
+    variants = {
+        "trunk": ("trpo_plus", dict(convergence.PLAIN)),
+        "branch": ("trpo_plus", {**convergence.PLAIN, "target_kl": shrink}),
+    }
+    monkeypatch.setattr(convergence, "VARIANTS", {**convergence.VARIANTS, **variants})
+    monkeypatch.setitem(convergence.BUDGETS, "Reacher2D-v1", 4 * 2048)  # one rollout of 2048 samples per chunk
+    convergence.run_job("Reacher2D-v1", "trunk", 0, 2 * 2048, tmp_path)
+    trunk = convergence.job_folder(tmp_path, "Reacher2D-v1", "trunk", 0)
+    branch = convergence.job_folder(tmp_path, "Reacher2D-v1", "branch", 0)
+    shutil.copytree(trunk, branch)
+    convergence.run_job("Reacher2D-v1", "branch", 0, 4 * 2048, tmp_path)
+    trunk_model = TRPOPlus.load(trunk / "model.zip")
+    branch_model = TRPOPlus.load(branch / "model.zip")
+    assert trunk_model.target_kl == 0.01 and trunk_model._current_progress_remaining == pytest.approx(0.5)
+    assert branch_model.target_kl == shrink and branch_model._current_progress_remaining == pytest.approx(0.0)
+    assert branch_model.current_target_kl == pytest.approx(0.001)  # the last update comes after the last rollout
+    rows = convergence.read_progress(branch)
+    assert [row["timesteps"] for row in rows] == [2048, 4096, 6144, 8192]
+    assert all(row["kl_overshoot"] <= 1.0 for row in rows)

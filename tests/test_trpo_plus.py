@@ -31,6 +31,7 @@ def _params(model: TRPOPlus) -> dict[str, np.ndarray]:
         ("target_kl", 0.0),
         ("target_kl", -0.01),
         ("target_kl", float("nan")),
+        ("target_kl", "lin_0.01"),  # rl-zoo's spelling is the zoo's to turn into a schedule, not the algorithm's
         ("cg_max_steps", 0),
         ("cg_damping", -0.1),
         ("line_search_shrinking_factor", 1.0),
@@ -52,6 +53,42 @@ def _params(model: TRPOPlus) -> dict[str, np.ndarray]:
 def test_invalid_hyperparameter_is_named(name: str, value: object) -> None:
     with pytest.raises(ValueError, match=f"`{name}`"):
         TRPOPlus("MlpPolicy", "Pendulum-v1", **{**TINY, name: value})
+
+
+def shrinking_kl(progress_remaining: float) -> float:
+    """A trust region that shrinks from 0.02 to 0.002 over training (module level, so a saved model can pickle it)."""
+    return 0.002 + 0.018 * progress_remaining
+
+
+def test_target_kl_schedule_sets_each_updates_trust_region(tmp_path: pathlib.Path) -> None:
+    """``target_kl`` may be a schedule of the remaining progress, as SB3's ``learning_rate``: each update's radius is
+    its value at that update (logged as ``train/target_kl``), the line search keeps the KL within it, and a saved
+    model keeps the schedule."""
+    model = TRPOPlus("MlpPolicy", "Pendulum-v1", seed=0, **{**TINY, "target_kl": shrinking_kl})
+    updates: list[tuple[float, float, float]] = []
+    train = model.train
+
+    def train_and_record() -> None:
+        train()
+        values = model.logger.name_to_value
+        updates.append((model._current_progress_remaining, values["train/target_kl"], values["train/kl_divergence_loss"]))
+
+    model.train = train_and_record  # type: ignore[method-assign]
+    model.learn(8 * 64)
+    assert len(updates) == 8
+    for progress, radius, kl in updates:
+        assert radius == pytest.approx(shrinking_kl(progress))
+        assert kl <= radius
+    assert updates[0][1] > 4 * updates[-1][1]  # it shrank: 0.0178 at the first update, 0.002 at the last
+    model.save(tmp_path / "model.zip", exclude=["train"])
+    loaded = TRPOPlus.load(tmp_path / "model.zip")
+    assert loaded.target_kl is shrinking_kl and loaded.current_target_kl == pytest.approx(updates[-1][1])
+
+
+def test_target_kl_schedule_that_leaves_the_range_is_named() -> None:
+    model = TRPOPlus("MlpPolicy", "Pendulum-v1", seed=0, **{**TINY, "target_kl": lambda progress: 0.01 - 0.02 * (progress < 1)})
+    with pytest.raises(ValueError, match="`target_kl`: its schedule gave -0.01 at remaining progress 0.5000"):
+        model.learn(2 * 64)
 
 
 def test_batch_of_one_sample_is_rejected() -> None:
