@@ -374,6 +374,17 @@ def evaluate_agent(folder: Path, env_id: str, episodes: int = AGENT_EPISODES, se
     return result
 
 
+def not_an_agent(variant: str) -> str | None:
+    """Why ``variant``'s runs cannot be shipped as an agent of the registered env (``trpo-plus enjoy`` and the
+    agent test make the env as registered; ``config.yml`` holds plain values), or None."""
+    overrides = VARIANTS[variant][1]
+    if "env_kwargs" in overrides:
+        return f"trained and evaluated with env_kwargs {overrides['env_kwargs']}"
+    if callable(overrides.get("target_kl")):
+        return "a target_kl schedule, which config.yml cannot hold"
+    return None
+
+
 def export_agents(out: Path, envs: list[str], folder: Path) -> None:
     """Copy the best finished TRPOPlus run of each env into rl-zoo's layout under ``folder``; record its success."""
     from convergence import _hyperparameters
@@ -381,15 +392,22 @@ def export_agents(out: Path, envs: list[str], folder: Path) -> None:
     manifest_path = folder / "agents.json"
     manifest: dict[str, Any] = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
     for env_id in envs:
-        candidates, without_checkpoint = [], []
+        candidates, without_checkpoint, not_agents = [], [], []
         for variant in (v for v, (algo, _) in VARIANTS.items() if algo == "trpo_plus"):
-            for seed, rows in complete_runs(out, env_id, variant).items():
+            runs = complete_runs(out, env_id, variant)
+            reason = not_an_agent(variant)
+            if runs and reason:
+                not_agents.append(f"{variant} ({reason})")
+                continue
+            for seed, rows in runs.items():
                 if not (job_folder(out, env_id, variant, seed) / "model.zip").exists():  # checkpoints are not committed
                     without_checkpoint.append(f"{variant} seed {seed} ({rows[-1]['eval_success']:.2f})")
                     continue
                 candidates.append((rows[-1]["eval_success"], rows[-1]["eval_return"], variant, seed))
         if without_checkpoint:
             print(f"{env_id}: finished runs without a local checkpoint, not exported: {', '.join(without_checkpoint)}")
+        if not_agents:
+            print(f"{env_id}: variants whose runs are not agents of the registered env: {', '.join(not_agents)}")
         if not candidates:
             print(f"{env_id}: no finished TRPOPlus run with a checkpoint")
             continue

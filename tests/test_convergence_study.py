@@ -223,3 +223,10 @@ def test_a_branched_run_takes_its_variants_target_kl_schedule_over_the_budget(
     rows = convergence.read_progress(branch)
     assert [row["timesteps"] for row in rows] == [2048, 4096, 6144, 8192]
     assert all(row["kl_overshoot"] <= 1.0 for row in rows)
+
+
+def test_runs_on_a_changed_env_or_with_a_schedule_are_not_shipped_as_agents() -> None:
+    """``agents`` ships a run as the registered env's agent only if it trained on that env with plain settings."""
+    assert convergence_report.not_an_agent("warm_scripted25_late") is None
+    assert "env_kwargs {'start_pose': 'ready'}" in str(convergence_report.not_an_agent("warm_scripted25_late_ready"))
+    assert "schedule" in str(convergence_report.not_an_agent("warm_scripted25_late_klshrink"))

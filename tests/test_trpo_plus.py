@@ -86,8 +86,10 @@ def test_target_kl_schedule_sets_each_updates_trust_region(tmp_path: pathlib.Pat
 
 
 def test_target_kl_schedule_that_leaves_the_range_is_named() -> None:
-    model = TRPOPlus("MlpPolicy", "Pendulum-v1", seed=0, **{**TINY, "target_kl": lambda progress: 0.01 - 0.02 * (progress < 1)})
-    with pytest.raises(ValueError, match="`target_kl`: its schedule gave -0.01 at remaining progress 0.5000"):
+    model = TRPOPlus(
+        "MlpPolicy", "Pendulum-v1", seed=0, **{**TINY, "target_kl": lambda progress: 0.01 - 0.02 * (progress < 1)}
+    )
+    with pytest.raises(ValueError, match=r"`target_kl`: its schedule gave -0\.01 at remaining progress 0\.5000"):
         model.learn(2 * 64)
 
 
