@@ -23,7 +23,7 @@ CUBE_ROTATIONS: dict[str, dict[str, Any]] = {
 }
 # start_pose -> the arm's joint angles before the reset noise (shoulder_y, shoulder_z, elbow_y, elbow_z, forearm_roll):
 # "stretched", the thesis' (horizontal along +x); "ready", the upper arm pitched 30 deg up and the forearm pointing
-# down, the grip 8.7 cm out along +x and 6.6 cm above the cube's top face, as manipulation benchmarks start
+# down, the grip 8.7 cm out along +x and 7 cm above the cube's top face, as manipulation benchmarks start
 # (Gymnasium Robotics' Fetch: the gripper above the table)
 START_POSES: dict[str, tuple[float, ...]] = {
     "stretched": (0.0, 0.0, 0.0, 0.0, 0.0),
@@ -64,7 +64,7 @@ def _v6_docstring(v5_doc: str) -> str:
         ' upright), `"free"` about every axis (a ball joint: it can also tip over) |'
         + '\n    | `start_pose` | `"stretched"` | the arm\'s pose before the reset noise: `"stretched"` horizontal along +x'
         ' (the thesis\'), `"ready"` the upper arm 30° up and the forearm pointing down, the grip 8.7 cm out along +x'
-        " and 6.6 cm above the cube's top |",
+        " and 7 cm above the cube's top |",
         start: "## Starting State\n    Arm horizontal along +x (`start_pose`), claw closed,",
     }
     return derived_docstring(
