@@ -186,7 +186,7 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "warm_scripted25_late_ready": ("trpo_plus", {**WARM, "env_kwargs": {"start_pose": "ready"}}),
     # Grasper3D-v6, session 25: the policies' evaluations keep swinging between 0.7 and 1.0 after 2M, each update moving
     # the policy by about the same KL (0.005-0.008); a trust region that shrinks from 0.01 after 2M to 0.001 at 5M lets
-    # it settle, as PPO's zoo settings anneal the learning rate (TRPOPlus' target_kl takes a schedule, as learning_rate)
+    # it settle, as rl-zoo's PPO settings often anneal the learning rate (TRPOPlus' target_kl takes a schedule too)
     "warm_scripted25_late_klshrink": ("trpo_plus", {**WARM, "target_kl": HoldThenShrink(0.01, 0.001, 0.4)}),
     # ... with the ready pose; its runs branch at 2M from warm_scripted25_late_ready's checkpoints (copied)
     "warm_scripted25_late_ready_klshrink": (
