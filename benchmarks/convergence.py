@@ -185,8 +185,9 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # lifts 0.95 of them by step 100 (stretched: 0.88)
     "warm_scripted25_late_ready": ("trpo_plus", {**WARM, "env_kwargs": {"start_pose": "ready"}}),
     # Grasper3D-v6, session 25: the policies' evaluations keep swinging between 0.7 and 1.0 after 2M, each update moving
-    # the policy by about the same KL (0.005-0.008); a trust region that shrinks from 0.01 after 2M to 0.001 at 5M lets
-    # it settle, as rl-zoo's PPO settings often anneal the learning rate (TRPOPlus' target_kl takes a schedule too)
+    # the policy by about the same KL (0.005-0.008); a trust region that shrinks from 0.01 after 2M to 0.001 at 5M is
+    # meant to let it settle, as rl-zoo's PPO settings often anneal the learning rate (TRPOPlus' target_kl takes a
+    # schedule too); over ten paired seeds on the ready pose it was a small gain at most (docs/benchmarks.md)
     "warm_scripted25_late_klshrink": ("trpo_plus", {**WARM, "target_kl": HoldThenShrink(0.01, 0.001, 0.4)}),
     # ... with the ready pose; its runs branch at 2M from warm_scripted25_late_ready's checkpoints (copied)
     "warm_scripted25_late_ready_klshrink": (
