@@ -194,6 +194,15 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
         "trpo_plus",
         {**WARM, "env_kwargs": {"start_pose": "ready"}, "target_kl": HoldThenShrink(0.01, 0.001, 0.4)},
     ),
+    # Grasper3D-v6, session 27: after 2M, a batch of less noise instead of a smaller step. The thesis' Grasper runs
+    # took 300 trajectories per update (30,000 samples; the YAML takes its reachers' 100), and its replay memory
+    # (k = 3) reuses the last three batches, importance-weighted. Runs branch at 2M from warm_scripted25_late_ready's
+    # checkpoints (copied); run from scratch, a variant takes its setting from the first update
+    "warm_scripted25_late_ready_n3000": ("trpo_plus", {**WARM, "env_kwargs": {"start_pose": "ready"}, "n_steps": 3000}),
+    "warm_scripted25_late_ready_replay3": (
+        "trpo_plus",
+        {**WARM, "env_kwargs": {"start_pose": "ready"}, "replay_memory": 3},
+    ),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (
@@ -217,6 +226,8 @@ TRAIN_ENV_KWARGS: dict[str, dict[str, Any]] = {
     "plain_scripted50_late": {**SCRIPTED25_LATE, "scripted_start_prob": 0.5},
     **{name: {**SCRIPTED25_LATE, "scripted_start_hold_height": HOLD_HEIGHT} for name in VARIANTS if name.endswith("_hold")},
 }
+# the settings a variant may change on a checkpoint it resumes (branches from): the trust region, the batch, the memory
+BRANCH_SETTINGS = ("target_kl", "n_steps", "replay_memory")
 MULTI_STEP = {"plain_scripted25_ms3"}  # variants trained by multistep.MultiStepTRPOPlus
 ZERO_CG_START = {"trpo_cg0"}  # variants whose sb3-contrib TRPO starts its conjugate gradient at 0
 STUDY_VARIANTS = list(STUDY)  # the default set of `run`
@@ -369,9 +380,9 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
     model_path, stats_path = folder / "model.zip", folder / "vecnormalize.pkl"
     if rows:
         env = VecNormalize.load(str(stats_path), venv) if normalize else venv
-        # a variant's own target_kl (a schedule, say) applies to a checkpoint it resumes, so that a run can branch
-        # from another variant's checkpoint; every other setting is the checkpoint's
-        branch = {"target_kl": overrides["target_kl"]} if "target_kl" in overrides else None
+        # a variant's own BRANCH_SETTINGS (a target_kl schedule, say) apply to a checkpoint it resumes, so that a run
+        # can branch from another variant's checkpoint; every other setting is the checkpoint's
+        branch = {key: overrides[key] for key in BRANCH_SETTINGS if key in overrides} or None
         model = algo_class.load(model_path, env=env, device="cpu", custom_objects=branch)
         model.__dict__.pop("train", None)  # checkpoints saved before 2026-11-22 03:50 pickled the wrapper below
     else:

@@ -73,6 +73,12 @@ LABELS = {
     "warm_scripted25_late_ready_klshrink": (
         "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, ready pose, target_kl down to 0.001 from 2M to 5M"
     ),
+    "warm_scripted25_late_ready_n3000": (
+        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, ready pose, 30,000 samples per update from 2M"
+    ),
+    "warm_scripted25_late_ready_replay3": (
+        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, ready pose, replay memory (k=3) from 2M"
+    ),
     "warm_scripted25_vf3e4": "TRPOPlus + warm start, 25 % scripted starts, critic step size 3e-4",
     "ppo_scripted25_e1": "SB3 PPO, 25 % scripted starts, 1 epoch per batch",
     "warm_sde": "TRPOPlus + warm start, gSDE",

@@ -225,6 +225,32 @@ def test_a_branched_run_takes_its_variants_target_kl_schedule_over_the_budget(
     assert all(row["kl_overshoot"] <= 1.0 for row in rows)
 
 
+def test_a_branched_run_takes_its_variants_batch_and_replay_memory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A job that resumes another variant's checkpoint collects its own variant's batch (n_steps) and keeps its own
+    replay memory; the trunk's checkpoint keeps the trunk's."""
+    import shutil
+
+    from sb3_trpo_plus import TRPOPlus
+
+    variants = {
+        "trunk": ("trpo_plus", dict(convergence.PLAIN)),
+        "branch": ("trpo_plus", {**convergence.PLAIN, "n_steps": 512, "replay_memory": 2}),
+    }
+    monkeypatch.setattr(convergence, "VARIANTS", {**convergence.VARIANTS, **variants})
+    monkeypatch.setitem(convergence.BUDGETS, "Reacher2D-v1", 4 * 2048)  # one rollout per chunk
+    convergence.run_job("Reacher2D-v1", "trunk", 0, 2048, tmp_path)  # 8 envs x 256 steps
+    trunk = convergence.job_folder(tmp_path, "Reacher2D-v1", "trunk", 0)
+    branch = convergence.job_folder(tmp_path, "Reacher2D-v1", "branch", 0)
+    shutil.copytree(trunk, branch)
+    convergence.run_job("Reacher2D-v1", "branch", 0, 2048 + 2 * 4096, tmp_path)  # two rollouts of 8 x 512
+    trunk_model = TRPOPlus.load(trunk / "model.zip")
+    branch_model = TRPOPlus.load(branch / "model.zip")
+    assert (trunk_model.n_steps, trunk_model.replay_memory) == (256, 0)
+    assert (branch_model.n_steps, branch_model.replay_memory) == (512, 2)
+    assert len(branch_model.rollout_memory) == 2
+    assert [row["timesteps"] for row in convergence.read_progress(branch)] == [2048, 6144, 10240]
+
+
 def test_runs_on_a_changed_env_or_with_a_schedule_are_not_shipped_as_agents() -> None:
     """``agents`` ships a run as the registered env's agent only if it trained on that env with plain settings."""
     assert convergence_report.not_an_agent("warm_scripted25_late") is None
