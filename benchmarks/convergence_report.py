@@ -143,7 +143,9 @@ def figure(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]], path
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    shown = sum(1 for seeds in runs.values() if seeds)
+    legend = 0.18 * shown + 0.2  # inches below the plots: one line per variant, so that long labels never cover a curve
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4 + legend))
     grid = np.linspace(0, BUDGETS[env_id], 101)
     colors = [plt.get_cmap("tab10")(i) for i in range(10)]
     for i, (variant, seeds) in enumerate((v, s) for v, s in runs.items() if s):
@@ -160,9 +162,9 @@ def figure(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]], path
     for ax in axes:
         ax.set_xlabel("env steps")
         ax.grid(alpha=0.3)
-    axes[1].legend(fontsize=8)
+    fig.legend(*axes[1].get_legend_handles_labels(), loc="lower center", fontsize=8, frameon=False)
     fig.suptitle(f"{env_id}: deterministic evaluation, mean ± std over seeds")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, legend / (4 + legend), 1.0, 1.0))
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
     plt.close(fig)
