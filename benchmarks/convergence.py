@@ -197,7 +197,8 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # Grasper3D-v6, session 27: after 2M, a batch of less noise instead of a smaller step. The thesis' Grasper runs
     # took 300 trajectories per update (30,000 samples; the YAML takes its reachers' 100), and its replay memory
     # (k = 3) reuses the last three batches, importance-weighted. Runs branch at 2M from warm_scripted25_late_ready's
-    # checkpoints (copied); run from scratch, a variant takes its setting from the first update
+    # checkpoints (copied); run from scratch, a variant takes its setting from the first update. Over ten seeds the larger
+    # batch kept nine runs >= 90 % at every evaluation from 3.9M; replay did not help (five seeds; docs/benchmarks.md)
     "warm_scripted25_late_ready_n3000": ("trpo_plus", {**WARM, "env_kwargs": {"start_pose": "ready"}, "n_steps": 3000}),
     "warm_scripted25_late_ready_replay3": (
         "trpo_plus",

@@ -237,8 +237,8 @@ def test_a_branched_run_takes_its_variants_batch_and_replay_memory(tmp_path: Pat
         "branch": ("trpo_plus", {**convergence.PLAIN, "n_steps": 512, "replay_memory": 2}),
     }
     monkeypatch.setattr(convergence, "VARIANTS", {**convergence.VARIANTS, **variants})
-    monkeypatch.setitem(convergence.BUDGETS, "Reacher2D-v1", 4 * 2048)  # one rollout per chunk
-    convergence.run_job("Reacher2D-v1", "trunk", 0, 2048, tmp_path)  # 8 envs x 256 steps
+    monkeypatch.setitem(convergence.BUDGETS, "Reacher2D-v1", 4 * 2048)  # a short study budget for the progress
+    convergence.run_job("Reacher2D-v1", "trunk", 0, 2048, tmp_path)  # 8 envs x 256 steps; a chunk is steps // 25
     trunk = convergence.job_folder(tmp_path, "Reacher2D-v1", "trunk", 0)
     branch = convergence.job_folder(tmp_path, "Reacher2D-v1", "branch", 0)
     shutil.copytree(trunk, branch)
