@@ -204,6 +204,13 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
         "trpo_plus",
         {**WARM, "env_kwargs": {"start_pose": "ready"}, "replay_memory": 3},
     ),
+    # Grasper3D-v6, session 28: three of ten ready-pose seeds are below 0.90 at 2M, the first lift found late. On v4,
+    # 25 CG iterations instead of 10 gave every seed its first lift within 0.64-0.72M (10: 0.6-1.4M); CG's relative
+    # residual after 10 iterations is 0.24-0.83 at 2M and 0.61-1.30 at 5M here: the step is far from the natural gradient
+    "warm_scripted25_late_ready_cg25": (
+        "trpo_plus",
+        {**WARM, "env_kwargs": {"start_pose": "ready"}, "cg_max_steps": 25},
+    ),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (

@@ -79,6 +79,9 @@ LABELS = {
     "warm_scripted25_late_ready_replay3": (
         "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, ready pose, replay memory (k=3) from 2M"
     ),
+    "warm_scripted25_late_ready_cg25": (
+        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, ready pose, 25 CG iterations"
+    ),
     "warm_scripted25_vf3e4": "TRPOPlus + warm start, 25 % scripted starts, critic step size 3e-4",
     "ppo_scripted25_e1": "SB3 PPO, 25 % scripted starts, 1 epoch per batch",
     "warm_sde": "TRPOPlus + warm start, gSDE",
@@ -354,15 +357,18 @@ def agents_section(manifest_path: Path) -> list[str]:
         f"`trained_agents/trpo_plus/<env>_1/`: the best TRPOPlus run of each env (highest final evaluation success),"
         f" re-evaluated on {AGENT_EPISODES} deterministic episodes from reset seed {AGENT_SEED} (held out from"
         " training and from the study's evaluations). `trpo-plus enjoy --env <env>` runs them (it falls back to"
-        " `trained_agents/` when `logs/` has no run); `trpo-plus record-video --env <env>` films them.",
+        " `trained_agents/` when `logs/` has no run); `trpo-plus record-video --env <env>` films them. An agent"
+        " trained on an env made with env kwargs keeps them in its `config.yml`, and both commands make the env"
+        " with them, as rl-zoo3's enjoy does.",
         "",
-        "| env | variant | seed | steps | success rate | mean return | video |",
-        "|---|---|---|---|---|---|---|",
+        "| env | env kwargs | variant | seed | steps | success rate | mean return | video |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for env_id, entry in sorted(manifest.items()):
         video = f"[mp4]({entry['video']})" if "video" in entry else "—"
+        kwargs = ", ".join(f"`{key}={value!r}`" for key, value in entry.get("env_kwargs", {}).items()) or "—"
         lines.append(
-            f"| `{env_id}` | {LABELS[entry['variant']]} | {entry['seed']} | {entry['timesteps']:,} | "
+            f"| `{env_id}` | {kwargs} | {LABELS[entry['variant']]} | {entry['seed']} | {entry['timesteps']:,} | "
             f"{entry['success_rate']:.2f} | {entry['mean_reward']:.2f} | {video} |"
         )
     for env_id, entry in sorted(manifest.items()):
@@ -383,11 +389,9 @@ def evaluate_agent(folder: Path, env_id: str, episodes: int = AGENT_EPISODES, se
 
 
 def not_an_agent(variant: str) -> str | None:
-    """Why ``variant``'s runs cannot be shipped as an agent of the registered env (``trpo-plus enjoy`` and the
-    agent test make the env as registered; ``config.yml`` holds plain values), or None."""
+    """Why ``variant``'s runs cannot be shipped as an agent (``config.yml`` holds plain values), or None. A variant's
+    env_kwargs go into ``config.yml``, which ``trpo-plus enjoy`` and the agent test make the env with."""
     overrides = VARIANTS[variant][1]
-    if "env_kwargs" in overrides:
-        return f"trained and evaluated with env_kwargs {overrides['env_kwargs']}"
     if callable(overrides.get("target_kl")):
         return "a target_kl schedule, which config.yml cannot hold"
     return None
@@ -415,7 +419,7 @@ def export_agents(out: Path, envs: list[str], folder: Path) -> None:
         if without_checkpoint:
             print(f"{env_id}: finished runs without a local checkpoint, not exported: {', '.join(without_checkpoint)}")
         if not_agents:
-            print(f"{env_id}: variants whose runs are not agents of the registered env: {', '.join(not_agents)}")
+            print(f"{env_id}: variants whose runs cannot be shipped: {', '.join(not_agents)}")
         if not candidates:
             print(f"{env_id}: no finished TRPOPlus run with a checkpoint")
             continue
@@ -445,6 +449,8 @@ def export_agents(out: Path, envs: list[str], folder: Path) -> None:
             "eval_seed": AGENT_SEED,
             "platform": platform.platform(),
         }
+        if config.get("env_kwargs"):
+            manifest[env_id]["env_kwargs"] = config["env_kwargs"]
         print(f"{env_id}: {variant} seed {seed}: success {result['success_rate']:.2f}, return {result['mean_reward']:.2f}")
         from sb3_trpo_plus.cli import record_video
 

@@ -122,10 +122,13 @@ def _load_trained(algo: str, env_id: str, folder: str, exp_id: int, load_best: b
     env_name = EnvironmentName(env_id)
     _, model_path, log_path = get_model_path(exp_id, folder, algo, env_name, load_best)
     hyperparams, stats_path = get_saved_hyperparams(os.path.join(log_path, env_name), test_mode=True)
-    env_kwargs: dict[str, Any] = {}
+    # as rl-zoo3's enjoy: the config's env_kwargs, replaced by those of the command line that trained it (args.yml)
+    env_kwargs: dict[str, Any] = dict(hyperparams.pop("env_kwargs", None) or {})
     args_path = Path(log_path) / env_name / "args.yml"
     if args_path.is_file():
-        env_kwargs = dict(yaml.load(args_path.read_text(), Loader=yaml.UnsafeLoader).get("env_kwargs") or {})
+        trained_with = yaml.load(args_path.read_text(), Loader=yaml.UnsafeLoader).get("env_kwargs")
+        if trained_with is not None:
+            env_kwargs = dict(trained_with)
     if render:
         env_kwargs["render_mode"] = "rgb_array"
     env = create_test_env(

@@ -17,6 +17,9 @@ def test_every_study_env_has_a_manifest_entry_or_none_yet() -> None:
     for env_id, entry in MANIFEST.items():
         assert (TRAINED_AGENTS / "trpo_plus" / f"{env_id}_1" / f"{env_id}.zip").is_file(), env_id
         assert entry["episodes"] == 20
+        # the env kwargs the docs list are those enjoy makes the env with (config.yml; JSON is YAML)
+        config = json.loads((TRAINED_AGENTS / "trpo_plus" / f"{env_id}_1" / env_id / "config.yml").read_text())
+        assert entry.get("env_kwargs", {}) == (config.get("env_kwargs") or {}), env_id
 
 
 @pytest.mark.parametrize("env_id", sorted(MANIFEST))

@@ -173,3 +173,30 @@ def test_optuna_samples_trpo_plus_hyperparameters(tmp_path: Path) -> None:
     for name in ("params_replay_memory", "params_cg_warm_start", "params_cg_damping", "params_value_baseline"):
         assert name in report.splitlines()[0]
     assert "COMPLETE" in report
+
+
+def test_a_saved_runs_env_kwargs_come_back_as_rl_zoo3s_enjoy_reads_them(tmp_path: Path) -> None:
+    """config.yml's env_kwargs make the test env (a shipped agent trained on a non-default env), and the training
+    command's env_kwargs in args.yml replace them, as in rl-zoo3's enjoy."""
+    import json
+
+    import grasp_envs  # noqa: F401
+    from sb3_trpo_plus import TRPOPlus
+
+    run = tmp_path / "trpo_plus" / "Grasper3D-v6_1"
+    (run / "Grasper3D-v6").mkdir(parents=True)
+    TRPOPlus("MlpPolicy", "Grasper3D-v6", n_steps=64, batch_size=64).save(run / "Grasper3D-v6.zip")
+    config = {"policy": "MlpPolicy", "n_steps": 64, "env_kwargs": {"start_pose": "ready"}}
+    (run / "Grasper3D-v6" / "config.yml").write_text(json.dumps(config))
+
+    def start_pose() -> str:
+        _, env, _ = cli._load_trained("trpo_plus", "Grasper3D-v6", str(tmp_path), 1, False, 0, False)
+        pose = env.get_attr("_ezpickle_kwargs")[0]["start_pose"]
+        env.close()
+        return pose
+
+    assert start_pose() == "ready"
+    (run / "Grasper3D-v6" / "args.yml").write_text("env_kwargs:\n  start_pose: stretched\n")
+    assert start_pose() == "stretched"
+    (run / "Grasper3D-v6" / "args.yml").write_text("env_kwargs: null\n")  # not given on the command line
+    assert start_pose() == "ready"
