@@ -212,6 +212,12 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
         "trpo_plus",
         {**WARM, "env_kwargs": {"start_pose": "ready"}, "cg_max_steps": 25},
     ),
+    # Grasper3D-v6, session 29: the two best second-half settings together: 25 CG iterations, and from 2M 30,000 samples
+    # per update; its runs branch at 2M from warm_scripted25_late_ready_cg25's checkpoints (copied)
+    "warm_scripted25_late_ready_cg25_n3000": (
+        "trpo_plus",
+        {**WARM, "env_kwargs": {"start_pose": "ready"}, "cg_max_steps": 25, "n_steps": 3000},
+    ),
     # Grasper3D-v4: exploration that persists over an episode: gSDE (Raffin et al. 2022), a new noise matrix
     # every 100 steps (one episode), initial action std ~0.8 (log_std_init -2; white noise starts at 1)
     "warm_sde": (
