@@ -207,13 +207,14 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # Grasper3D-v6, session 28: three of ten ready-pose seeds are below 0.90 at 2M, the first lift found late. On v4,
     # 25 CG iterations instead of 10 gave every seed its first lift within 0.64-0.72M (10: 0.6-1.4M); CG's relative
     # residual after 10 iterations is 0.24-0.83 at 2M and 0.61-1.30 at 5M here: the step is far from the natural gradient.
-    # With 25: 8 of 10 seeds reach 0.90 within 2M (10: 7), the slow ones others; 2 of 6 to 5M meet both halves
+    # With 25: 8 of 10 seeds reach 0.90 within 2M (10: 7), the slow ones others; 2 of 10 to 5M meet both halves
     "warm_scripted25_late_ready_cg25": (
         "trpo_plus",
         {**WARM, "env_kwargs": {"start_pose": "ready"}, "cg_max_steps": 25},
     ),
     # Grasper3D-v6, session 29: the two best second-half settings together: 25 CG iterations, and from 2M 30,000 samples
-    # per update; its runs branch at 2M from warm_scripted25_late_ready_cg25's checkpoints (copied)
+    # per update; its runs branch at 2M from warm_scripted25_late_ready_cg25's checkpoints (copied). Over seeds 6-9 it
+    # added one evaluation >= 0.90 after 2M to 25 iterations alone (52 of 60 against 51); 2 of 4 meet both halves
     "warm_scripted25_late_ready_cg25_n3000": (
         "trpo_plus",
         {**WARM, "env_kwargs": {"start_pose": "ready"}, "cg_max_steps": 25, "n_steps": 3000},
