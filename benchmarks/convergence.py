@@ -213,8 +213,8 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
         {**WARM, "env_kwargs": {"start_pose": "ready"}, "cg_max_steps": 25},
     ),
     # Grasper3D-v6, session 29: the two best second-half settings together: 25 CG iterations, and from 2M 30,000 samples
-    # per update; its runs branch at 2M from warm_scripted25_late_ready_cg25's checkpoints (copied). Over seeds 6-9 it
-    # added one evaluation >= 0.90 after 2M to 25 iterations alone (52 of 60 against 51); 2 of 4 meet both halves
+    # per update; its runs branch at 2M from warm_scripted25_late_ready_cg25's checkpoints (copied). Ten seeds (6-9 in
+    # session 29, 0-5 in 30): >= 0.90 in 125 of the 150 evaluations after 2M, as either alone; 3 of 10 meet both halves
     "warm_scripted25_late_ready_cg25_n3000": (
         "trpo_plus",
         {**WARM, "env_kwargs": {"start_pose": "ready"}, "cg_max_steps": 25, "n_steps": 3000},
