@@ -366,6 +366,7 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
     import torch as th
     from grasper_reward import EpisodeStats  # benchmarks/ is on sys.path when this file runs as a script
     from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecNormalize
 
     import grasp_envs  # noqa: F401
@@ -423,6 +424,9 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
             overshoots.append(float(values["train/kl_divergence_loss"]) / radius)
 
     model.train = train_and_record  # type: ignore[method-assign]
+    # the CSV is the study's log; SB3's default logger (verbose 0, no TensorBoard) would make an empty folder
+    # <tempdir>/SB3-<date> at every chunk's learn(): 25-40 per run
+    model.set_logger(Logger(folder=None, output_formats=[]))
     progress_over_budget(model, max(BUDGETS.get(env_id, steps), steps))
 
     chunk = max(steps // CHUNKS, 1)

@@ -227,8 +227,9 @@ def test_a_branched_run_takes_its_variants_target_kl_schedule_over_the_budget(
 
 def test_a_branched_run_takes_its_variants_batch_and_replay_memory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A job that resumes another variant's checkpoint collects its own variant's batch (n_steps) and keeps its own
-    replay memory; the trunk's checkpoint keeps the trunk's."""
+    replay memory; the trunk's checkpoint keeps the trunk's. No job leaves SB3's empty log folders in the tempdir."""
     import shutil
+    import tempfile
 
     from sb3_trpo_plus import TRPOPlus
 
@@ -238,6 +239,9 @@ def test_a_branched_run_takes_its_variants_batch_and_replay_memory(tmp_path: Pat
     }
     monkeypatch.setattr(convergence, "VARIANTS", {**convergence.VARIANTS, **variants})
     monkeypatch.setitem(convergence.BUDGETS, "Reacher2D-v1", 4 * 2048)  # a short study budget for the progress
+    temporary = tmp_path / "tempdir"
+    temporary.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temporary))  # where SB3's default logger makes its folders
     convergence.run_job("Reacher2D-v1", "trunk", 0, 2048, tmp_path)  # 8 envs x 256 steps; a chunk is steps // 25
     trunk = convergence.job_folder(tmp_path, "Reacher2D-v1", "trunk", 0)
     branch = convergence.job_folder(tmp_path, "Reacher2D-v1", "branch", 0)
@@ -249,6 +253,7 @@ def test_a_branched_run_takes_its_variants_batch_and_replay_memory(tmp_path: Pat
     assert (branch_model.n_steps, branch_model.replay_memory) == (512, 2)
     assert len(branch_model.rollout_memory) == 2
     assert [row["timesteps"] for row in convergence.read_progress(branch)] == [2048, 6144, 10240]
+    assert not list(temporary.glob("SB3-*"))
 
 
 def test_runs_with_a_schedule_are_not_shipped_as_agents() -> None:
