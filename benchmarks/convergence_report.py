@@ -86,6 +86,9 @@ LABELS = {
         "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, ready pose, 25 CG iterations,"
         " 30,000 samples per update from 2M"
     ),
+    "warm_scripted25_late_ready_cg25_g098": (
+        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, ready pose, 25 CG iterations, gamma 0.98"
+    ),
     "warm_scripted25_vf3e4": "TRPOPlus + warm start, 25 % scripted starts, critic step size 3e-4",
     "ppo_scripted25_e1": "SB3 PPO, 25 % scripted starts, 1 epoch per batch",
     "warm_sde": "TRPOPlus + warm start, gSDE",
