@@ -13,6 +13,10 @@ VecNormalize statistics atomically and appends a row to
 benchmarks/results/convergence/<env>/<variant>/seed<k>/progress.csv. A rerun continues every unfinished
 job from its last row, so the study can be stopped at any time (a resumed job's env seeds differ from an
 uninterrupted run's; the CSV says where it resumed).
+
+Checkpoints (model.zip, vecnormalize.pkl) are git-ignored, so a fresh clone holds a run's CSV without them, and
+`run` starts such a run again from zero (its CSV removed). A session that stops in the middle of a long run keeps it
+resumable across machines by committing that run's two checkpoint files with ``git add -f``.
 """
 
 from __future__ import annotations
