@@ -284,6 +284,17 @@ def test_save_is_atomic(tmp_path: pathlib.Path, monkeypatch) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.zip"]  # no temporary file left behind
 
 
+def test_save_keeps_the_usual_file_mode(tmp_path: pathlib.Path) -> None:
+    # the temporary file of the atomic save is private (0600) when made; the saved model must not be
+    model = TRPOPlus("MlpPolicy", "Pendulum-v1", **TINY)
+    previous = os.umask(0o022)
+    try:
+        model.save(tmp_path / "model.zip")
+    finally:
+        os.umask(previous)
+    assert (tmp_path / "model.zip").stat().st_mode & 0o777 == 0o644
+
+
 def test_predict_deterministic_after_load(tmp_path: pathlib.Path) -> None:
     model = TRPOPlus("MlpPolicy", "CartPole-v1", **TINY).learn(128)
     model.save(tmp_path / "m")
