@@ -773,12 +773,13 @@ class TRPOPlus(TRPO):
                 target = target.with_suffix(".zip")
             target.parent.mkdir(parents=True, exist_ok=True)
             fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-            # mkstemp makes the file private (0600); give it the mode a plain open() would, as SB3's own save does
-            umask = os.umask(0)
-            os.umask(umask)
-            os.fchmod(fd, 0o666 & ~umask)
             os.close(fd)
             try:
+                # mkstemp makes the file private (0600); give it the mode a plain open() would, as SB3's save does
+                # (os.chmod, not os.fchmod, which Windows lacks before Python 3.13)
+                umask = os.umask(0)
+                os.umask(umask)
+                os.chmod(tmp_name, 0o666 & ~umask)
                 with open(tmp_name, "wb") as tmp_file:
                     super().save(tmp_file, exclude=exclude, include=include)  # type: ignore[arg-type]
                     tmp_file.flush()
