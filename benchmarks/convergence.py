@@ -17,6 +17,10 @@ uninterrupted run's; the CSV says where it resumed).
 Checkpoints (model.zip, vecnormalize.pkl) are git-ignored, so a fresh clone holds a run's CSV without them, and
 `run` starts such a run again from zero (its CSV removed). A session that stops in the middle of a long run keeps it
 resumable across machines by committing that run's two checkpoint files with ``git add -f``.
+
+A job overwrites its checkpoint at every chunk. ``--keep-checkpoints DIR`` also keeps each chunk's:
+DIR/<timesteps>/<env>/<variant>/seed<k>/ holds model.zip, vecnormalize.pkl and progress.csv up to that row, so
+DIR/<timesteps> is the study's folder as it stood then (``--out`` of ``report``, ``--runs`` of grasper_probe.py).
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from __future__ import annotations
 import argparse
 import csv
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -372,8 +377,11 @@ def _atomic_replace(write: Any, path: Path) -> None:
     os.replace(temporary, path)
 
 
-def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None:
-    """Train one (env, variant, seed) to ``steps`` in chunks, resuming from the last saved chunk."""
+def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path, keep: Path | None = None) -> None:
+    """Train one (env, variant, seed) to ``steps`` in chunks, resuming from the last saved chunk.
+
+    With ``keep``, every chunk's checkpoint and CSV are also copied to ``keep/<timesteps>/<env>/<variant>/seed<k>``.
+    """
     import torch as th
     from grasper_reward import EpisodeStats  # benchmarks/ is on sys.path when this file runs as a script
     from stable_baselines3.common.env_util import make_vec_env
@@ -473,8 +481,26 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path) -> None
         if normalize:
             _atomic_replace(lambda p: env.save(str(p)), stats_path)  # type: ignore[attr-defined]
         _append_row(folder / "progress.csv", row)
+        if keep is not None:
+            keep_checkpoint(folder, job_folder(keep / str(done), env_id, variant, seed))
     env.close()
     eval_env.close()
+
+
+def keep_checkpoint(folder: Path, destination: Path) -> None:
+    """Copy a job folder's checkpoint files and CSV to ``destination``, which appears whole or not at all.
+
+    A copy already there (a run started again from zero, into the same folder) is replaced, as SB3's
+    CheckpointCallback overwrites its files.
+    """
+    temporary = destination.with_name(destination.name + ".tmp")
+    shutil.rmtree(temporary, ignore_errors=True)  # a copy cut short by a stop
+    temporary.mkdir(parents=True)
+    for name in ("model.zip", "vecnormalize.pkl", "progress.csv"):
+        if (folder / name).exists():
+            shutil.copy2(folder / name, temporary / name)
+    shutil.rmtree(destination, ignore_errors=True)
+    os.replace(temporary, destination)
 
 
 def progress_over_budget(model: Any, budget: int) -> None:
@@ -527,7 +553,13 @@ def evaluate(model: Any, env: Any, episodes: int) -> tuple[float, float]:
 
 # ---------------------------------------------------------------------------------------------- scheduler
 def run_study(
-    envs: Sequence[str], variants: Sequence[str], seeds: Sequence[int], jobs: int, out: Path, steps: int | None
+    envs: Sequence[str],
+    variants: Sequence[str],
+    seeds: Sequence[int],
+    jobs: int,
+    out: Path,
+    steps: int | None,
+    keep: Path | None = None,
 ) -> None:
     """Run every unfinished job, ``jobs`` at a time, each in its own process (``job`` subcommand)."""
     todo = []
@@ -544,6 +576,8 @@ def run_study(
         env_id, variant, seed, budget = job
         command = [sys.executable, __file__, "job", "--env", env_id, "--variant", variant, "--seed", str(seed),
                    "--steps", str(budget), "--out", str(out)]  # fmt: skip
+        if keep is not None:
+            command += ["--keep-checkpoints", str(keep)]
         start = time.time()
         result = subprocess.run(command, capture_output=True, text=True)
         status = "ok" if result.returncode == 0 else f"FAILED ({result.returncode}):\n{result.stderr[-2000:]}"
@@ -574,12 +608,17 @@ def main(argv: Sequence[str] | None = None) -> None:
     agents.add_argument("--folder", default=str(ROOT / "trained_agents"))
     for command in (run, job, report, agents):
         command.add_argument("--out", default=str(OUT))
+    for command in (run, job):
+        command.add_argument(
+            "--keep-checkpoints", type=Path, default=None, metavar="DIR",
+            help="also keep every chunk's checkpoint, in DIR/<timesteps>/<env>/<variant>/seed<k>/",
+        )  # fmt: skip
     args = parser.parse_args(argv)
     out = Path(args.out)
     if args.command == "run":
-        run_study(args.envs, args.variants, args.seeds, args.jobs, out, args.steps)
+        run_study(args.envs, args.variants, args.seeds, args.jobs, out, args.steps, args.keep_checkpoints)
     elif args.command == "job":
-        run_job(args.env, args.variant, args.seed, args.steps, out)
+        run_job(args.env, args.variant, args.seed, args.steps, out, args.keep_checkpoints)
     elif args.command == "report":
         from convergence_report import write_report  # benchmarks/convergence_report.py
 

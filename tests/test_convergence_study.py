@@ -256,6 +256,34 @@ def test_a_branched_run_takes_its_variants_batch_and_replay_memory(tmp_path: Pat
     assert not list(temporary.glob("SB3-*"))
 
 
+def test_kept_checkpoints_are_the_study_as_it_stood_after_each_chunk(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--keep-checkpoints``: each chunk's copy holds the CSV up to its row, and its model and VecNormalize
+    statistics give that row's evaluation again (what a probe of a past chunk relies on)."""
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from sb3_trpo_plus import TRPOPlus
+
+    monkeypatch.setitem(convergence.BUDGETS, "Reacher2D-v1", 4 * 2048)
+    out, kept = tmp_path / "runs", tmp_path / "kept"
+    convergence.main(["job", "--env", "Reacher2D-v1", "--variant", "plain", "--seed", "0", "--steps", "4096",
+                      "--out", str(out), "--keep-checkpoints", str(kept)])  # fmt: skip
+    job = convergence.job_folder(out, "Reacher2D-v1", "plain", 0)
+    rows, lines = convergence.read_progress(job), (job / "progress.csv").read_text().splitlines()
+    assert sorted(int(p.name) for p in kept.iterdir()) == [2048, 4096]
+    for count, row in enumerate(rows, start=1):
+        folder = convergence.job_folder(kept / str(int(row["timesteps"])), "Reacher2D-v1", "plain", 0)
+        assert sorted(p.name for p in folder.iterdir()) == ["model.zip", "progress.csv", "vecnormalize.pkl"]
+        assert (folder / "progress.csv").read_text().splitlines() == lines[: count + 1]  # the header and its rows
+        env = make_vec_env("Reacher2D-v1", n_envs=1, seed=convergence.EVAL_SEED)
+        env = VecNormalize.load(str(folder / "vecnormalize.pkl"), env)
+        env.training, env.norm_reward = False, False
+        model = TRPOPlus.load(folder / "model.zip", device="cpu")
+        eval_return, eval_success = convergence.evaluate(model, env, convergence.EVAL_EPISODES)
+        assert (round(eval_return, 4), eval_success) == (row["eval_return"], row["eval_success"])
+    assert not list(kept.rglob("*.tmp"))
+
+
 def test_runs_with_a_schedule_are_not_shipped_as_agents() -> None:
     """``agents`` ships a run whose settings config.yml can hold: env kwargs (enjoy applies them), not a schedule."""
     assert convergence_report.not_an_agent("warm_scripted25_late") is None
