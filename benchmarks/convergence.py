@@ -21,6 +21,13 @@ resumable across machines by committing that run's two checkpoint files with ``g
 A job overwrites its checkpoint at every chunk. ``--keep-checkpoints DIR`` also keeps each chunk's:
 DIR/<timesteps>/<env>/<variant>/seed<k>/ holds model.zip, vecnormalize.pkl and progress.csv up to that row, so
 DIR/<timesteps> is the study's folder as it stood then (``--out`` of ``report``, ``--runs`` of grasper_probe.py).
+
+    python benchmarks/convergence.py reevaluate --kept DIR --envs Grasper3D-v6 --variants ... --seeds 3 4 \
+        --after 2000000 --episodes 100 --reset-seed 20000
+
+evaluates every kept checkpoint past ``--after`` (and each run's own last one) again, the study's way (deterministic
+policy, VecNormalize statistics of the checkpoint, the env seeded once) on more episodes from another reset seed,
+into <out>/<env>/<variant>/seed<k>/reevaluation.csv; a checkpoint already evaluated so is not evaluated again.
 """
 
 from __future__ import annotations
@@ -542,13 +549,143 @@ def _append_row(path: Path, row: dict[str, Any]) -> None:
         writer.writerow(cell)
 
 
-def evaluate(model: Any, env: Any, episodes: int) -> tuple[float, float]:
-    """Deterministic return and success rate (final step) over ``episodes`` episodes from reset seed ``EVAL_SEED``."""
+def evaluate(model: Any, env: Any, episodes: int, seed: int = EVAL_SEED) -> tuple[float, float]:
+    """Deterministic return and success rate (final step) over ``episodes`` episodes from reset seed ``seed``."""
     from sb3_trpo_plus.cli import evaluate as evaluate_policy
 
-    env.seed(EVAL_SEED)
+    env.seed(seed)
     result = evaluate_policy(model, env, episodes)
     return result["mean_reward"], result["success_rate"]
+
+
+# ---------------------------------------------------------------------------------------------- reevaluation
+REEVALUATION_COLUMNS = ["timesteps", "episodes", "reset_seed", "eval_success", "eval_return"]
+
+
+def evaluate_checkpoint(env_id: str, variant: str, folder: Path, episodes: int, seed: int) -> tuple[float, float]:
+    """``evaluate`` of the checkpoint in ``folder`` (model.zip, vecnormalize.pkl), in the run's evaluation env."""
+    import pickle
+
+    import torch as th
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    import grasp_envs  # noqa: F401
+
+    th.set_num_threads(1)
+    env: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=evaluation_env_kwargs(env_id, variant))
+    if (folder / "vecnormalize.pkl").exists():
+        with (folder / "vecnormalize.pkl").open("rb") as file:
+            statistics = pickle.load(file)
+        env = VecNormalize(env, training=False, norm_reward=False)
+        env.obs_rms = statistics.obs_rms  # as run_job's evaluation env takes the training env's
+    model = algorithm_class(variant).load(folder / "model.zip", device="cpu")
+    try:
+        return evaluate(model, env, episodes, seed)
+    finally:
+        env.close()
+
+
+def checkpoints_after(kept: Path, out: Path, env_id: str, variant: str, seed: int, after: int) -> dict[int, Path]:
+    """Timesteps -> folder of every checkpoint of the run past ``after``: those kept, and the run's own last one."""
+    found = {}
+    for snapshot in kept.iterdir() if kept.is_dir() else []:
+        folder = job_folder(snapshot, env_id, variant, seed)
+        if snapshot.name.isdigit() and int(snapshot.name) > after and (folder / "model.zip").exists():
+            found[int(snapshot.name)] = folder
+    folder = job_folder(out, env_id, variant, seed)
+    rows = read_progress(folder)
+    if rows and (folder / "model.zip").exists() and int(rows[-1]["timesteps"]) > after:
+        found.setdefault(int(rows[-1]["timesteps"]), folder)
+    return dict(sorted(found.items()))
+
+
+def reevaluate(
+    kept: Path,
+    out: Path,
+    envs: Sequence[str],
+    variants: Sequence[str],
+    seeds: Sequence[int],
+    after: int,
+    episodes: int,
+    reset_seed: int,
+    jobs: int,
+) -> None:
+    """Evaluate every checkpoint past ``after`` not yet evaluated with (episodes, reset_seed); print a summary."""
+    if not kept.is_dir():
+        raise FileNotFoundError(f"--kept {kept}: no such folder (convergence.py run --keep-checkpoints makes it)")
+    if episodes < 1:
+        raise ValueError(f"--episodes must be at least 1, got {episodes}")
+    runs = [(env_id, variant, seed) for env_id in envs for variant in variants for seed in seeds]
+    todo = []
+    for env_id, variant, seed in runs:
+        checkpoints = checkpoints_after(kept, out, env_id, variant, seed, after)
+        if not checkpoints:
+            raise FileNotFoundError(f"no checkpoint of {env_id} {variant} seed {seed} past {after} in {kept} or {out}")
+        done = {
+            (row["timesteps"], row["episodes"], row["reset_seed"]) for row in read_reevaluation(out, env_id, variant, seed)
+        }
+        todo += [
+            (env_id, variant, seed, t, folder) for t, folder in checkpoints.items() if (t, episodes, reset_seed) not in done
+        ]
+    print(f"{len(todo)} checkpoints to evaluate on {episodes} episodes from reset seed {reset_seed}", flush=True)
+
+    def record(job: tuple[str, str, int, int, Path], result: tuple[float, float]) -> None:
+        env_id, variant, seed, timesteps, _ = job
+        row = {"timesteps": timesteps, "episodes": episodes, "reset_seed": reset_seed,
+               "eval_success": result[1], "eval_return": round(result[0], 4)}  # fmt: skip
+        _write_reevaluation(out, env_id, variant, seed, row)
+        print(f"{env_id} {variant} seed{seed} {timesteps}: success {result[1]:.3f}", flush=True)
+
+    if jobs > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = {
+                pool.submit(evaluate_checkpoint, e, v, f, episodes, reset_seed): (e, v, s, t, f) for e, v, s, t, f in todo
+            }
+            for future, job in futures.items():
+                record(job, future.result())
+    else:
+        for job in todo:
+            record(job, evaluate_checkpoint(job[0], job[1], job[4], episodes, reset_seed))
+    for env_id, variant, seed in runs:
+        rows = [row for row in read_reevaluation(out, env_id, variant, seed)
+                if row["episodes"] == episodes and row["reset_seed"] == reset_seed and row["timesteps"] > after]  # fmt: skip
+        target = TARGETS.get(env_id, 0.0)
+        reached = sum(row["eval_success"] >= target for row in rows)
+        lowest = min(row["eval_success"] for row in rows)
+        print(f"{env_id} {variant} seed{seed}: {reached} of {len(rows)} evaluations past {after} >= {target} "
+              f"(lowest {lowest:.3f})")  # fmt: skip
+
+
+def read_reevaluation(out: Path, env_id: str, variant: str, seed: int) -> list[dict[str, float]]:
+    path = job_folder(out, env_id, variant, seed) / "reevaluation.csv"
+    if not path.exists():
+        return []
+    with path.open() as file:
+        return [{key: float(value) for key, value in row.items()} for row in csv.DictReader(file)]
+
+
+def _write_reevaluation(out: Path, env_id: str, variant: str, seed: int, row: dict[str, Any]) -> None:
+    """Add ``row`` to the run's reevaluation.csv (sorted by timesteps, episodes, seed), replacing the file atomically."""
+    rows = [*read_reevaluation(out, env_id, variant, seed), row]
+    rows.sort(key=lambda r: (r["timesteps"], r["episodes"], r["reset_seed"]))
+
+    def write(temporary: Path) -> None:
+        with temporary.open("w", newline="") as file:
+            writer = csv.DictWriter(file, fieldnames=REEVALUATION_COLUMNS)
+            writer.writeheader()
+            for r in rows:
+                writer.writerow(
+                    {
+                        key: int(r[key]) if key in ("timesteps", "episodes", "reset_seed") else r[key]
+                        for key in REEVALUATION_COLUMNS
+                    }
+                )
+
+    _atomic_replace(write, job_folder(out, env_id, variant, seed) / "reevaluation.csv")
 
 
 # ---------------------------------------------------------------------------------------------- scheduler
@@ -606,7 +743,16 @@ def main(argv: Sequence[str] | None = None) -> None:
     agents = sub.add_parser("agents", help="export the best TRPOPlus run of each env to trained_agents/")
     agents.add_argument("--envs", nargs="+", default=list(BUDGETS), choices=list(BUDGETS))
     agents.add_argument("--folder", default=str(ROOT / "trained_agents"))
-    for command in (run, job, report, agents):
+    again = sub.add_parser("reevaluate", help="evaluate kept checkpoints again on more episodes")
+    again.add_argument("--kept", type=Path, required=True, help="the folder of run --keep-checkpoints")
+    again.add_argument("--envs", nargs="+", required=True, choices=list(BUDGETS))
+    again.add_argument("--variants", nargs="+", required=True, choices=list(VARIANTS))
+    again.add_argument("--seeds", type=int, nargs="+", required=True)
+    again.add_argument("--after", type=int, default=0, help="only checkpoints past these timesteps")
+    again.add_argument("--episodes", type=int, default=100)
+    again.add_argument("--reset-seed", type=int, default=20_000, help="not the study's 10,000")
+    again.add_argument("--jobs", type=int, default=2)
+    for command in (run, job, report, agents, again):
         command.add_argument("--out", default=str(OUT))
     for command in (run, job):
         command.add_argument(
@@ -619,6 +765,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         run_study(args.envs, args.variants, args.seeds, args.jobs, out, args.steps, args.keep_checkpoints)
     elif args.command == "job":
         run_job(args.env, args.variant, args.seed, args.steps, out, args.keep_checkpoints)
+    elif args.command == "reevaluate":
+        reevaluate(args.kept, out, args.envs, args.variants, args.seeds, args.after, args.episodes, args.reset_seed, args.jobs)
     elif args.command == "report":
         from convergence_report import write_report  # benchmarks/convergence_report.py
 

@@ -256,9 +256,12 @@ def test_a_branched_run_takes_its_variants_batch_and_replay_memory(tmp_path: Pat
     assert not list(temporary.glob("SB3-*"))
 
 
-def test_kept_checkpoints_are_the_study_as_it_stood_after_each_chunk(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_kept_checkpoints_are_the_study_as_it_stood_after_each_chunk(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     """``--keep-checkpoints``: each chunk's copy holds the CSV up to its row, and its model and VecNormalize
-    statistics give that row's evaluation again (what a probe of a past chunk relies on)."""
+    statistics give that row's evaluation again (what a probe of a past chunk relies on); ``reevaluate`` gives them
+    too, on the study's own episodes, and evaluates each checkpoint once per (episodes, reset seed)."""
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -282,6 +285,25 @@ def test_kept_checkpoints_are_the_study_as_it_stood_after_each_chunk(tmp_path: P
         eval_return, eval_success = convergence.evaluate(model, env, convergence.EVAL_EPISODES)
         assert (round(eval_return, 4), eval_success) == (row["eval_return"], row["eval_success"])
     assert not list(kept.rglob("*.tmp"))
+    # evaluated again the study's way, on its own episodes: the rows' evaluations, once, whatever the reruns
+    again = ["reevaluate", "--kept", str(kept), "--out", str(out), "--envs", "Reacher2D-v1", "--variants", "plain",
+             "--seeds", "0", "--episodes", str(convergence.EVAL_EPISODES), "--reset-seed", str(convergence.EVAL_SEED),
+             "--jobs", "1"]  # fmt: skip
+    convergence.main(again)
+    convergence.main([*again[:-1], "2"])
+    assert "0 checkpoints to evaluate" in capsys.readouterr().out
+    reevaluation = convergence.read_reevaluation(out, "Reacher2D-v1", "plain", 0)
+    assert [(r["timesteps"], r["eval_success"], r["eval_return"]) for r in reevaluation] == [
+        (row["timesteps"], row["eval_success"], row["eval_return"]) for row in rows
+    ]
+    convergence.main([*again, "--after", "2048", "--episodes", "3", "--reset-seed", "7", "--jobs", "2"])  # the 4096 one
+    assert [(r["timesteps"], r["episodes"]) for r in convergence.read_reevaluation(out, "Reacher2D-v1", "plain", 0)] == [
+        (2048, 20), (4096, 3), (4096, 20)
+    ]  # fmt: skip
+    with pytest.raises(FileNotFoundError, match="no checkpoint of Reacher2D-v1 plain seed 1"):
+        convergence.main([*again, "--seeds", "1"])
+    with pytest.raises(FileNotFoundError, match="--kept"):
+        convergence.main([*again, "--kept", str(tmp_path / "nothing")])
 
 
 def test_runs_with_a_schedule_are_not_shipped_as_agents() -> None:
