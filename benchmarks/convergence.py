@@ -610,8 +610,10 @@ def reevaluate(
     episodes: int,
     reset_seed: int,
     jobs: int,
+    timesteps: Sequence[int] | None = None,
 ) -> None:
-    """Evaluate every checkpoint past ``after`` not yet evaluated with (episodes, reset_seed); print a summary."""
+    """Evaluate every checkpoint past ``after`` (of ``timesteps`` only, if given) not yet evaluated with
+    (episodes, reset_seed); print a summary."""
     if not kept.is_dir():
         raise FileNotFoundError(f"--kept {kept}: no such folder (convergence.py run --keep-checkpoints makes it)")
     if episodes < 1:
@@ -622,6 +624,10 @@ def reevaluate(
         checkpoints = checkpoints_after(kept, out, env_id, variant, seed, after)
         if not checkpoints:
             raise FileNotFoundError(f"no checkpoint of {env_id} {variant} seed {seed} past {after} in {kept} or {out}")
+        if timesteps:
+            if missing := sorted(set(timesteps) - set(checkpoints)):
+                raise FileNotFoundError(f"no checkpoint of {env_id} {variant} seed {seed} at {missing} past {after}")
+            checkpoints = {t: checkpoints[t] for t in timesteps}
         done = {
             (row["timesteps"], row["episodes"], row["reset_seed"]) for row in read_reevaluation(out, env_id, variant, seed)
         }
@@ -652,7 +658,8 @@ def reevaluate(
             record(job, evaluate_checkpoint(job[0], job[1], job[4], episodes, reset_seed))
     for env_id, variant, seed in runs:
         rows = [row for row in read_reevaluation(out, env_id, variant, seed)
-                if row["episodes"] == episodes and row["reset_seed"] == reset_seed and row["timesteps"] > after]  # fmt: skip
+                if row["episodes"] == episodes and row["reset_seed"] == reset_seed and row["timesteps"] > after
+                and (not timesteps or row["timesteps"] in timesteps)]  # fmt: skip
         target = TARGETS.get(env_id, 0.0)
         reached = sum(row["eval_success"] >= target for row in rows)
         lowest = min(row["eval_success"] for row in rows)
@@ -752,6 +759,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     again.add_argument("--episodes", type=int, default=100)
     again.add_argument("--reset-seed", type=int, default=20_000, help="not the study's 10,000")
     again.add_argument("--jobs", type=int, default=2)
+    again.add_argument("--timesteps", type=int, nargs="+", default=None, help="only the checkpoints at these")
     for command in (run, job, report, agents, again):
         command.add_argument("--out", default=str(OUT))
     for command in (run, job):
@@ -766,7 +774,18 @@ def main(argv: Sequence[str] | None = None) -> None:
     elif args.command == "job":
         run_job(args.env, args.variant, args.seed, args.steps, out, args.keep_checkpoints)
     elif args.command == "reevaluate":
-        reevaluate(args.kept, out, args.envs, args.variants, args.seeds, args.after, args.episodes, args.reset_seed, args.jobs)
+        reevaluate(
+            args.kept,
+            out,
+            args.envs,
+            args.variants,
+            args.seeds,
+            args.after,
+            args.episodes,
+            args.reset_seed,
+            args.jobs,
+            args.timesteps,
+        )
     elif args.command == "report":
         from convergence_report import write_report  # benchmarks/convergence_report.py
 

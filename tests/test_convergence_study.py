@@ -300,6 +300,12 @@ def test_kept_checkpoints_are_the_study_as_it_stood_after_each_chunk(
     assert [(r["timesteps"], r["episodes"]) for r in convergence.read_reevaluation(out, "Reacher2D-v1", "plain", 0)] == [
         (2048, 20), (4096, 3), (4096, 20)
     ]  # fmt: skip
+    convergence.main([*again, "--timesteps", "2048", "--episodes", "2"])
+    assert [r["timesteps"] for r in convergence.read_reevaluation(out, "Reacher2D-v1", "plain", 0) if r["episodes"] == 2] == [
+        2048
+    ]
+    with pytest.raises(FileNotFoundError, match=r"seed 0 at \[6144\]"):
+        convergence.main([*again, "--timesteps", "2048", "6144"])
     with pytest.raises(FileNotFoundError, match="no checkpoint of Reacher2D-v1 plain seed 1"):
         convergence.main([*again, "--seeds", "1"])
     with pytest.raises(FileNotFoundError, match="--kept"):
