@@ -573,8 +573,12 @@ def evaluate_checkpoint(env_id: str, variant: str, folder: Path, episodes: int, 
     import grasp_envs  # noqa: F401
 
     th.set_num_threads(1)
+    algo, overrides = VARIANTS[variant]
+    normalize = model_settings(algo, env_id, overrides)[2]
+    if normalize and not (folder / "vecnormalize.pkl").exists():
+        raise FileNotFoundError(f"{folder}: the run normalizes its observations, and vecnormalize.pkl is missing")
     env: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=evaluation_env_kwargs(env_id, variant))
-    if (folder / "vecnormalize.pkl").exists():
+    if normalize:
         with (folder / "vecnormalize.pkl").open("rb") as file:
             statistics = pickle.load(file)
         env = VecNormalize(env, training=False, norm_reward=False)

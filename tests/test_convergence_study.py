@@ -310,6 +310,9 @@ def test_kept_checkpoints_are_the_study_as_it_stood_after_each_chunk(
         convergence.main([*again, "--seeds", "1"])
     with pytest.raises(FileNotFoundError, match="--kept"):
         convergence.main([*again, "--kept", str(tmp_path / "nothing")])
+    (kept / "4096" / "Reacher2D-v1" / "plain" / "seed0" / "vecnormalize.pkl").unlink()
+    with pytest.raises(FileNotFoundError, match=r"vecnormalize\.pkl is missing"):
+        convergence.main([*again, "--timesteps", "4096", "--episodes", "4"])
 
 
 def test_runs_with_a_schedule_are_not_shipped_as_agents() -> None:
