@@ -345,6 +345,16 @@ def evaluation_env_kwargs(env_id: str, variant: str) -> dict[str, Any]:
     return dict(model_settings(algo, env_id, overrides)[4] or {})
 
 
+def evaluation_env(env_id: str, variant: str, seed: int, normalize: bool) -> Any:
+    """One monitored evaluation env of ``variant`` seeded with ``seed``; with ``normalize``, a VecNormalize that neither
+    updates its statistics nor scales rewards (its caller sets ``obs_rms``)."""
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    env = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=evaluation_env_kwargs(env_id, variant))
+    return VecNormalize(env, training=False, norm_reward=False) if normalize else env
+
+
 def training_envs(env_id: str, variant: str, seed: int) -> Any:
     """New unmonitored training envs of ``variant`` seeded with ``seed``, for the diagnostic scripts: the variant's
     training-env kwargs, VecNormalize where the YAML asks for it. ``run_job`` builds its own (it monitors episodes)."""
@@ -431,9 +441,7 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path, keep: P
     else:
         env = VecNormalize(venv, gamma=params.get("gamma", 0.99)) if normalize else venv
         model = algo_class(policy, env, seed=seed, device="cpu", verbose=0, **params)
-    eval_env = make_vec_env(env_id, n_envs=1, seed=EVAL_SEED, env_kwargs=env_kwargs)
-    if normalize:
-        eval_env = VecNormalize(eval_env, training=False, norm_reward=False)
+    eval_env = evaluation_env(env_id, variant, EVAL_SEED, normalize)
     diagnostics: dict[str, list[float]] = {name: [] for name in DIAGNOSTICS}
     overshoots: list[float] = []  # each TRPO update's KL over its trust region's radius
     original_train = model.train
@@ -567,8 +575,6 @@ def evaluate_checkpoint(env_id: str, variant: str, folder: Path, episodes: int, 
     import pickle
 
     import torch as th
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import VecNormalize
 
     import grasp_envs  # noqa: F401
 
@@ -577,12 +583,10 @@ def evaluate_checkpoint(env_id: str, variant: str, folder: Path, episodes: int, 
     normalize = model_settings(algo, env_id, overrides)[2]
     if normalize and not (folder / "vecnormalize.pkl").exists():
         raise FileNotFoundError(f"{folder}: the run normalizes its observations, and vecnormalize.pkl is missing")
-    env: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=evaluation_env_kwargs(env_id, variant))
+    env = evaluation_env(env_id, variant, seed, normalize)
     if normalize:
         with (folder / "vecnormalize.pkl").open("rb") as file:
-            statistics = pickle.load(file)
-        env = VecNormalize(env, training=False, norm_reward=False)
-        env.obs_rms = statistics.obs_rms  # as run_job's evaluation env takes the training env's
+            env.obs_rms = pickle.load(file).obs_rms  # as run_job's evaluation env takes the training env's
     model = algorithm_class(variant).load(folder / "model.zip", device="cpu")
     try:
         return evaluate(model, env, episodes, seed)
