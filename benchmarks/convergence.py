@@ -303,8 +303,9 @@ def job_folder(out: Path, env_id: str, variant: str, seed: int) -> Path:
     return out / env_id / variant / f"seed{seed}"
 
 
-def read_progress(folder: Path) -> list[dict[str, float]]:
-    path = folder / "progress.csv"
+def read_progress(folder: Path, name: str = "progress.csv") -> list[dict[str, float]]:
+    """The rows of a run's CSV (``progress.csv``, or ``reevaluation.csv``) as floats; a blank cell is NaN."""
+    path = folder / name
     if not path.exists():
         return []
     with path.open() as file:
@@ -676,11 +677,7 @@ def reevaluate(
 
 
 def read_reevaluation(out: Path, env_id: str, variant: str, seed: int) -> list[dict[str, float]]:
-    path = job_folder(out, env_id, variant, seed) / "reevaluation.csv"
-    if not path.exists():
-        return []
-    with path.open() as file:
-        return [{key: float(value) for key, value in row.items()} for row in csv.DictReader(file)]
+    return read_progress(job_folder(out, env_id, variant, seed), "reevaluation.csv")
 
 
 def _write_reevaluation(out: Path, env_id: str, variant: str, seed: int, row: dict[str, Any]) -> None:
