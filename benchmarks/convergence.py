@@ -77,6 +77,10 @@ TARGETS = {
     "Grasper3D-v5": 0.9,
     "Grasper3D-v6": 0.9,
 }
+# the issue's targets: each reached within these steps (the budget, but the Grasper's: 2M of 5M), and on the Grasper
+# held to the end: every evaluation after TARGET_WITHIN at or above the target, for every seed
+TARGET_WITHIN = {env_id: 2_000_000 if env_id.startswith("Grasper") else budget for env_id, budget in BUDGETS.items()}
+TARGET_HELD = {env_id for env_id in BUDGETS if env_id.startswith("Grasper")}
 
 
 @dataclass(frozen=True)
@@ -569,6 +573,7 @@ def evaluate(model: Any, env: Any, episodes: int, seed: int = EVAL_SEED) -> tupl
 
 # ---------------------------------------------------------------------------------------------- reevaluation
 REEVALUATION_COLUMNS = ["timesteps", "episodes", "reset_seed", "eval_success", "eval_return"]
+REEVALUATION_EPISODES, REEVALUATION_SEED = 100, 20_000  # reevaluate's defaults, and the report's count of them
 
 
 def evaluate_checkpoint(env_id: str, variant: str, folder: Path, episodes: int, seed: int) -> tuple[float, float]:
@@ -666,9 +671,8 @@ def reevaluate(
         for job in todo:
             record(job, evaluate_checkpoint(job[0], job[1], job[4], episodes, reset_seed))
     for env_id, variant, seed in runs:
-        rows = [row for row in read_reevaluation(out, env_id, variant, seed)
-                if row["episodes"] == episodes and row["reset_seed"] == reset_seed and row["timesteps"] > after
-                and (not timesteps or row["timesteps"] in timesteps)]  # fmt: skip
+        rows = [row for row in reevaluations(out, env_id, variant, seed, episodes, reset_seed, after)
+                if not timesteps or row["timesteps"] in timesteps]  # fmt: skip
         target = TARGETS.get(env_id, 0.0)
         reached = sum(row["eval_success"] >= target for row in rows)
         lowest = min(row["eval_success"] for row in rows)
@@ -678,6 +682,17 @@ def reevaluate(
 
 def read_reevaluation(out: Path, env_id: str, variant: str, seed: int) -> list[dict[str, float]]:
     return read_progress(job_folder(out, env_id, variant, seed), "reevaluation.csv")
+
+
+def reevaluations(
+    out: Path, env_id: str, variant: str, seed: int, episodes: int, reset_seed: int, after: float
+) -> list[dict[str, float]]:
+    """The run's re-evaluations on ``episodes`` episodes from ``reset_seed`` of its checkpoints past ``after``."""
+    return [
+        row
+        for row in read_reevaluation(out, env_id, variant, seed)
+        if row["episodes"] == episodes and row["reset_seed"] == reset_seed and row["timesteps"] > after
+    ]
 
 
 def _write_reevaluation(out: Path, env_id: str, variant: str, seed: int, row: dict[str, Any]) -> None:
@@ -761,8 +776,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     again.add_argument("--variants", nargs="+", required=True, choices=list(VARIANTS))
     again.add_argument("--seeds", type=int, nargs="+", required=True)
     again.add_argument("--after", type=int, default=0, help="only checkpoints past these timesteps")
-    again.add_argument("--episodes", type=int, default=100)
-    again.add_argument("--reset-seed", type=int, default=20_000, help="not the study's 10,000")
+    again.add_argument("--episodes", type=int, default=REEVALUATION_EPISODES)
+    again.add_argument("--reset-seed", type=int, default=REEVALUATION_SEED, help="not the study's 10,000")
     again.add_argument("--jobs", type=int, default=2)
     again.add_argument("--timesteps", type=int, nargs="+", default=None, help="only the checkpoints at these")
     for command in (run, job, report, agents, again):

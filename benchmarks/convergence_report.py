@@ -19,13 +19,18 @@ from convergence import (
     EVAL_EPISODES,
     FORMER_DISCOUNTS,
     HOLD_HEIGHT,
+    REEVALUATION_EPISODES,
+    REEVALUATION_SEED,
     ROOT,
     SCRIPTED,
     STUDY_VARIANTS,
+    TARGET_HELD,
+    TARGET_WITHIN,
     TARGETS,
     VARIANTS,
     job_folder,
     read_progress,
+    reevaluations,
 )
 
 BEGIN, END = "<!-- convergence-report:begin -->", "<!-- convergence-report:end -->"
@@ -215,6 +220,71 @@ def tables(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]) -> l
     return lines
 
 
+def _steps(timesteps: float) -> str:
+    return f"{timesteps / 1e6:g}M" if timesteps >= 1e6 else f"{timesteps / 1e3:g}k"
+
+
+def _seed_count(chosen: set[int], seeds: Sequence[int]) -> str:
+    """``3 of 5 (0, 2, 4)``: how many of ``seeds`` are ``chosen``, and which, unless none or all."""
+    named = f" ({', '.join(map(str, sorted(chosen)))})" if chosen and len(chosen) < len(seeds) else ""
+    return f"{len(chosen)} of {len(seeds)}{named}"
+
+
+def _evaluations_within(rows: list[dict[str, float]], timesteps: float) -> int:
+    """How many of a run's evaluations count as within ``timesteps``: those up to it, and the first past it when none
+    is at it (a chunk ends on a whole rollout, so a 300k budget's last evaluation can come at 301,056 steps)."""
+    n = sum(row["timesteps"] <= timesteps for row in rows)
+    return n if n and rows[n - 1]["timesteps"] == timesteps else min(n + 1, len(rows))
+
+
+def target_table(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]], out: Path) -> list[str]:
+    """The issue's target, seed by seed: which seeds reach it within ``TARGET_WITHIN`` and, on the envs of
+    ``TARGET_HELD``, stay at or above it at every evaluation after that (both: the target met), how many of those
+    evaluations are, and how many of the checkpoints after it are on ``REEVALUATION_EPISODES`` episodes where
+    ``convergence.py reevaluate`` evaluated them again (its default reset seed)."""
+    target, within = TARGETS[env_id], TARGET_WITHIN[env_id]
+    held = env_id in TARGET_HELD
+    header = f"| variant | seeds | ≥ {target:.0%} within {_steps(within)} |"
+    if held:
+        header += (
+            f" ≥ {target:.0%} at every evaluation after {_steps(within)} | both | evaluations after {_steps(within)}"
+            f" ≥ {target:.0%} | on {REEVALUATION_EPISODES} episodes: checkpoints after {_steps(within)} ≥ {target:.0%} |"
+        )
+    lines = [header, "|---" * header.count(" | ") + "|---|"]
+    for variant, seeds in runs.items():
+        if not seeds:
+            continue
+        split = {s: _evaluations_within(rows, within) for s, rows in seeds.items()}
+        reached = {s for s, n in split.items() if any(r["eval_success"] >= target for r in seeds[s][:n])}
+        cells = [LABELS[variant], str(len(seeds)), _seed_count(reached, list(seeds))]
+        if held:
+            after = {s: [r["eval_success"] for r in seeds[s][n:]] for s, n in split.items()}
+            stayed = {s for s, values in after.items() if all(v >= target for v in values)}
+            again = {}
+            for s in seeds:
+                last_within = seeds[s][split[s] - 1]["timesteps"]
+                rows = reevaluations(out, env_id, variant, s, REEVALUATION_EPISODES, REEVALUATION_SEED, last_within)
+                if rows:
+                    again[s] = [r["eval_success"] for r in rows]
+            passed = sum(v >= target for values in after.values() for v in values)
+            again_passed = sum(v >= target for values in again.values() for v in values)
+            again_cell = "—"
+            if again:
+                every = {s for s, values in again.items() if all(v >= target for v in values)}
+                again_cell = (
+                    f"{again_passed} of {sum(map(len, again.values()))} (seeds {', '.join(map(str, again))}; "
+                    f"every one: {_seed_count(every, list(again))})"
+                )
+            cells += [
+                _seed_count(stayed, list(seeds)),
+                _seed_count(reached & stayed, list(seeds)),
+                f"{passed} of {sum(map(len, after.values()))}",
+                again_cell,
+            ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
 def diagnostics_table(runs: dict[str, dict[int, list[dict[str, float]]]]) -> list[str]:
     keys = ["kl_overshoot", "line_search_steps", "cg_residual", "cg_relative_residual", "step_gradient_cosine",
             "warm_start_cosine", "replay_ess"]  # fmt: skip
@@ -332,6 +402,10 @@ def write_report(out: Path, docs: Path) -> None:
             f"![{env_id} learning curves](images/{image.name})",
             "",
             *tables(env_id, runs),
+            "",
+            "The issue's target, seed by seed:",
+            "",
+            *target_table(env_id, runs, out),
             "",
             "Per-update diagnostics (mean over each run's updates, then mean ± std over seeds):",
             "",

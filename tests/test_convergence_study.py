@@ -320,3 +320,53 @@ def test_runs_with_a_schedule_are_not_shipped_as_agents() -> None:
     assert convergence_report.not_an_agent("warm_scripted25_late") is None
     assert convergence_report.not_an_agent("warm_scripted25_late_ready") is None
     assert "schedule" in str(convergence_report.not_an_agent("warm_scripted25_late_klshrink"))
+
+
+def _rows(*evaluations: tuple[int, float]) -> list[dict[str, float]]:
+    return [{"timesteps": float(t), "eval_success": s} for t, s in evaluations]
+
+
+def test_target_table_counts_the_seeds_that_reach_the_target_and_hold_it(tmp_path: Path) -> None:
+    """The Grasper's target, by hand: within 2M, then at or above it at every evaluation after 2M, and the same count
+    on the re-evaluations of the report's protocol (100 episodes, reset seed 20,000) only."""
+    variant = "warm_scripted25_late_ready_cg25_g098"
+    runs = {
+        "plain": {},  # no finished run: no row
+        variant: {
+            0: _rows((1_000_000, 0.5), (2_000_000, 0.9), (3_500_000, 0.95), (5_000_000, 1.0)),  # meets both halves
+            1: _rows((1_000_000, 0.9), (2_000_000, 0.85), (3_500_000, 0.85), (5_000_000, 0.9)),  # reaches, then a dip
+            2: _rows((1_000_000, 0.5), (2_000_000, 0.8), (3_500_000, 0.9), (5_000_000, 0.95)),  # too late, then holds
+        },
+    }
+    for seed, timesteps, episodes, reset_seed, success in [
+        (1, 2_000_000, 100, 20_000, 0.5),  # at 2M, not after it: not counted
+        (1, 3_500_000, 100, 20_000, 0.93),
+        (1, 5_000_000, 100, 20_000, 0.89),
+        (1, 5_000_000, 200, 30_000, 0.10),  # another protocol: not counted
+        (2, 5_000_000, 100, 20_000, 0.97),
+    ]:
+        convergence.job_folder(tmp_path, "Grasper3D-v6", variant, seed).mkdir(parents=True, exist_ok=True)
+        row = {"timesteps": timesteps, "episodes": episodes, "reset_seed": reset_seed, "eval_success": success}
+        convergence._write_reevaluation(tmp_path, "Grasper3D-v6", variant, seed, {**row, "eval_return": 0.0})
+    lines = convergence_report.target_table("Grasper3D-v6", runs, tmp_path)
+    assert lines[0] == (
+        "| variant | seeds | ≥ 90% within 2M | ≥ 90% at every evaluation after 2M | both | evaluations after 2M ≥ 90% "
+        "| on 100 episodes: checkpoints after 2M ≥ 90% |"
+    )
+    assert lines[1] == "|---|---|---|---|---|---|---|"
+    label = convergence_report.LABELS[variant]
+    assert lines[2:] == [
+        f"| {label} | 3 | 2 of 3 (0, 1) | 2 of 3 (0, 2) | 1 of 3 (0) | 5 of 6 | 2 of 3 (seeds 1, 2; every one: 1 of 2 (2)) |"
+    ]
+
+
+def test_target_table_counts_a_budgets_last_evaluation_past_it_as_within() -> None:
+    """A chunk ends on a whole rollout: Reacher2D-v1's 300k budget ends at 301,056 steps, and that evaluation counts."""
+    runs = {"plain": {0: _rows((294_912, 0.85), (301_056, 0.95)), 1: _rows((294_912, 0.85), (301_056, 0.85))}}
+    assert convergence_report.target_table("Reacher2D-v1", runs, Path("/nonexistent")) == [
+        "| variant | seeds | ≥ 90% within 300k |",
+        "|---|---|---|",
+        "| TRPOPlus plain | 2 | 1 of 2 (0) |",
+    ]
+    assert convergence_report._evaluations_within(_rows((1, 0.0), (2, 0.0), (3, 0.0)), 2) == 2  # one at the mark
+    assert convergence_report._evaluations_within(_rows((1, 0.0), (3, 0.0), (4, 0.0)), 2) == 2  # the first past it
