@@ -224,10 +224,10 @@ def _steps(timesteps: float) -> str:
     return f"{timesteps / 1e6:g}M" if timesteps >= 1e6 else f"{timesteps / 1e3:g}k"
 
 
-def _seed_count(chosen: set[int], seeds: Sequence[int]) -> str:
-    """``3 of 5 (0, 2, 4)``: how many of ``seeds`` are ``chosen``, and which, unless none or all."""
-    named = f" ({', '.join(map(str, sorted(chosen)))})" if chosen and len(chosen) < len(seeds) else ""
-    return f"{len(chosen)} of {len(seeds)}{named}"
+def _seed_count(chosen: set[int], total: int) -> str:
+    """``3 of 5 (0, 2, 4)``: how many of ``total`` seeds are ``chosen``, and which, unless none or all."""
+    named = f" ({', '.join(map(str, sorted(chosen)))})" if 0 < len(chosen) < total else ""
+    return f"{len(chosen)} of {total}{named}"
 
 
 def _evaluations_within(rows: list[dict[str, float]], timesteps: float) -> int:
@@ -256,7 +256,7 @@ def target_table(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]
             continue
         split = {s: _evaluations_within(rows, within) for s, rows in seeds.items()}
         reached = {s for s, n in split.items() if any(r["eval_success"] >= target for r in seeds[s][:n])}
-        cells = [LABELS[variant], str(len(seeds)), _seed_count(reached, list(seeds))]
+        cells = [LABELS[variant], str(len(seeds)), _seed_count(reached, len(seeds))]
         if held:
             after = {s: [r["eval_success"] for r in seeds[s][n:]] for s, n in split.items()}
             stayed = {s for s, values in after.items() if all(v >= target for v in values)}
@@ -273,11 +273,11 @@ def target_table(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]
                 every = {s for s, values in again.items() if all(v >= target for v in values)}
                 again_cell = (
                     f"{again_passed} of {sum(map(len, again.values()))} (seeds {', '.join(map(str, again))}; "
-                    f"every one: {_seed_count(every, list(again))})"
+                    f"every one: {_seed_count(every, len(again))})"
                 )
             cells += [
-                _seed_count(stayed, list(seeds)),
-                _seed_count(reached & stayed, list(seeds)),
+                _seed_count(stayed, len(seeds)),
+                _seed_count(reached & stayed, len(seeds)),
                 f"{passed} of {sum(map(len, after.values()))}",
                 again_cell,
             ]
