@@ -574,6 +574,9 @@ def evaluate(model: Any, env: Any, episodes: int, seed: int = EVAL_SEED) -> tupl
 # ---------------------------------------------------------------------------------------------- reevaluation
 REEVALUATION_COLUMNS = ["timesteps", "episodes", "reset_seed", "eval_success", "eval_return"]
 REEVALUATION_EPISODES, REEVALUATION_SEED = 100, 20_000  # reevaluate's defaults, and the report's count of them
+# the Grasper's second half as read since session 37 (docs/benchmarks.md): a checkpoint whose REEVALUATION_EPISODES
+# fall below the target is evaluated on CONFIRMATION_EPISODES more from each of CONFIRMATION_SEEDS, and all of them decide
+CONFIRMATION_EPISODES, CONFIRMATION_SEEDS = 200, (30_000, 40_000)
 
 
 def evaluate_checkpoint(env_id: str, variant: str, folder: Path, episodes: int, seed: int) -> tuple[float, float]:
@@ -693,6 +696,31 @@ def reevaluations(
         for row in read_reevaluation(out, env_id, variant, seed)
         if row["episodes"] == episodes and row["reset_seed"] == reset_seed and row["timesteps"] > after
     ]
+
+
+def checkpoint_verdict(rows: Sequence[dict[str, float]], target: float) -> bool | None:
+    """The declared reading at one checkpoint, from its re-evaluations: at or above ``target`` on REEVALUATION_EPISODES
+    episodes from REEVALUATION_SEED or, where those fall below it, on them and CONFIRMATION_EPISODES from each of
+    CONFIRMATION_SEEDS together (successes pooled); None while an evaluation it needs has not been run."""
+    protocol = {REEVALUATION_SEED: REEVALUATION_EPISODES, **dict.fromkeys(CONFIRMATION_SEEDS, CONFIRMATION_EPISODES)}
+    runs = {int(r["reset_seed"]): r for r in rows if protocol.get(int(r["reset_seed"])) == r["episodes"]}
+    if REEVALUATION_SEED not in runs:
+        return None
+    if runs[REEVALUATION_SEED]["eval_success"] >= target:
+        return True
+    if len(runs) < len(protocol):
+        return None
+    successes = sum(round(r["eval_success"] * r["episodes"]) for r in runs.values())
+    return successes / sum(r["episodes"] for r in runs.values()) >= target
+
+
+def seed_verdict(out: Path, env_id: str, variant: str, seed: int, checkpoints: Sequence[float]) -> bool | None:
+    """The declared reading for one run: False if a checkpoint of ``checkpoints`` fails it, True if every one passes,
+    None while one is undecided."""
+    rows = read_reevaluation(out, env_id, variant, seed)
+    target = TARGETS[env_id]
+    verdicts = [checkpoint_verdict([r for r in rows if r["timesteps"] == t], target) for t in checkpoints]
+    return False if False in verdicts else None if None in verdicts else True
 
 
 def _write_reevaluation(out: Path, env_id: str, variant: str, seed: int, row: dict[str, Any]) -> None:

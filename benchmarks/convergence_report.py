@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 from convergence import (
     BUDGETS,
+    CONFIRMATION_EPISODES,
+    CONFIRMATION_SEEDS,
     EVAL_EPISODES,
     FORMER_DISCOUNTS,
     HOLD_HEIGHT,
@@ -31,6 +33,7 @@ from convergence import (
     job_folder,
     read_progress,
     reevaluations,
+    seed_verdict,
 )
 
 BEGIN, END = "<!-- convergence-report:begin -->", "<!-- convergence-report:end -->"
@@ -249,6 +252,8 @@ def target_table(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]
         header += (
             f" ≥ {target:.0%} at every evaluation after {_steps(within)} | both | evaluations after {_steps(within)}"
             f" ≥ {target:.0%} | on {REEVALUATION_EPISODES} episodes: checkpoints after {_steps(within)} ≥ {target:.0%} |"
+            f" every checkpoint after {_steps(within)} ≥ {target:.0%} on {REEVALUATION_EPISODES} episodes, or on"
+            f" {REEVALUATION_EPISODES + len(CONFIRMATION_SEEDS) * CONFIRMATION_EPISODES} where those fall below |"
         )
     lines = [header, "|---" * header.count(" | ") + "|---|"]
     for variant, seeds in runs.items():
@@ -275,11 +280,20 @@ def target_table(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]
                     f"{again_passed} of {sum(map(len, again.values()))} (seeds {', '.join(map(str, again))}; "
                     f"every one: {_seed_count(every, len(again))})"
                 )
+            verdicts = {s: seed_verdict(out, env_id, variant, s, [r["timesteps"] for r in seeds[s][n:]])
+                        for s, n in split.items()}  # fmt: skip
+            declared_cell = "—"
+            if any(verdict is not None for verdict in verdicts.values()):
+                declared_cell = _seed_count({s for s, v in verdicts.items() if v}, len(seeds)) + " pass"
+                for word, value in (("fail", False), ("not yet decided", None)):
+                    if which := [str(s) for s in sorted(verdicts) if verdicts[s] is value]:
+                        declared_cell += f"; {word}: {', '.join(which)}"
             cells += [
                 _seed_count(stayed, len(seeds)),
                 _seed_count(reached & stayed, len(seeds)),
                 f"{passed} of {sum(map(len, after.values()))}",
                 again_cell,
+                declared_cell,
             ]
         lines.append("| " + " | ".join(cells) + " |")
     return lines

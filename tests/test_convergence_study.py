@@ -343,6 +343,8 @@ def test_target_table_counts_the_seeds_that_reach_the_target_and_hold_it(tmp_pat
         (1, 3_500_000, 100, 20_000, 0.93),
         (1, 5_000_000, 100, 20_000, 0.89),
         (1, 5_000_000, 200, 30_000, 0.10),  # another protocol: not counted
+        (1, 5_000_000, 200, 40_000, 0.95),  # ... but with it and the 30,000 the 5M checkpoint has 299 of 500: fails
+        (2, 3_500_000, 100, 20_000, 0.90),
         (2, 5_000_000, 100, 20_000, 0.97),
     ]:
         convergence.job_folder(tmp_path, "Grasper3D-v6", variant, seed).mkdir(parents=True, exist_ok=True)
@@ -351,13 +353,33 @@ def test_target_table_counts_the_seeds_that_reach_the_target_and_hold_it(tmp_pat
     lines = convergence_report.target_table("Grasper3D-v6", runs, tmp_path)
     assert lines[0] == (
         "| variant | seeds | ≥ 90% within 2M | ≥ 90% at every evaluation after 2M | both | evaluations after 2M ≥ 90% "
-        "| on 100 episodes: checkpoints after 2M ≥ 90% |"
+        "| on 100 episodes: checkpoints after 2M ≥ 90% "
+        "| every checkpoint after 2M ≥ 90% on 100 episodes, or on 500 where those fall below |"
     )
-    assert lines[1] == "|---|---|---|---|---|---|---|"
+    assert lines[1] == "|---|---|---|---|---|---|---|---|"
     label = convergence_report.LABELS[variant]
     assert lines[2:] == [
-        f"| {label} | 3 | 2 of 3 (0, 1) | 2 of 3 (0, 2) | 1 of 3 (0) | 5 of 6 | 2 of 3 (seeds 1, 2; every one: 1 of 2 (2)) |"
+        f"| {label} | 3 | 2 of 3 (0, 1) | 2 of 3 (0, 2) | 1 of 3 (0) | 5 of 6 | 3 of 4 (seeds 1, 2; every one: 1 of 2 (2)) "
+        "| 1 of 3 (2) pass; fail: 1; not yet decided: 0 |"
     ]
+
+
+def test_checkpoint_verdict_reads_100_episodes_then_500() -> None:
+    """The declared reading at one checkpoint, by hand: 100 episodes from reset seed 20,000 decide at or above 90 %;
+    below it, those and 200 from each of 30,000 and 40,000, pooled (seed 4 at 2.8M: 88 + 191 + 187 = 466 of 500)."""
+
+    def rows(*runs: tuple[int, int, float]) -> list[dict[str, float]]:
+        return [{"timesteps": 2_800_000, "episodes": e, "reset_seed": r, "eval_success": s} for e, r, s in runs]
+
+    verdict = convergence.checkpoint_verdict
+    assert verdict(rows((100, 20_000, 0.90)), 0.9) is True
+    assert verdict(rows((100, 20_000, 0.88), (200, 30_000, 0.955), (200, 40_000, 0.935)), 0.9) is True  # 466 of 500
+    assert verdict(rows((100, 20_000, 0.88), (200, 30_000, 0.90), (200, 40_000, 0.90)), 0.9) is False  # 448 of 500
+    assert verdict(rows((100, 20_000, 0.90), (200, 30_000, 0.90), (200, 40_000, 0.90)), 0.9) is True  # 450: at it
+    assert verdict(rows((100, 20_000, 0.88), (200, 30_000, 0.955)), 0.9) is None  # the 40,000 not yet run
+    assert verdict(rows((100, 20_000, 0.88), (100, 30_000, 1.0), (200, 40_000, 1.0)), 0.9) is None  # 100, not 200
+    assert verdict(rows((20, 20_000, 1.0), (200, 30_000, 1.0), (200, 40_000, 1.0)), 0.9) is None  # no 100 from 20,000
+    assert verdict([], 0.9) is None
 
 
 def test_target_table_counts_a_budgets_last_evaluation_past_it_as_within() -> None:
