@@ -714,11 +714,9 @@ def checkpoint_verdict(rows: Sequence[dict[str, float]], target: float) -> bool 
     return successes / sum(r["episodes"] for r in runs.values()) >= target
 
 
-def seed_verdict(out: Path, env_id: str, variant: str, seed: int, checkpoints: Sequence[float]) -> bool | None:
-    """The declared reading for one run: False if a checkpoint of ``checkpoints`` fails it, True if every one passes,
-    None while one is undecided."""
-    rows = read_reevaluation(out, env_id, variant, seed)
-    target = TARGETS[env_id]
+def seed_verdict(rows: Sequence[dict[str, float]], checkpoints: Sequence[float], target: float) -> bool | None:
+    """The declared reading for one run, from its re-evaluations: False if a checkpoint of ``checkpoints`` fails it,
+    True if every one passes, None while one is undecided."""
     verdicts = [checkpoint_verdict([r for r in rows if r["timesteps"] == t], target) for t in checkpoints]
     return False if False in verdicts else None if None in verdicts else True
 

@@ -32,6 +32,7 @@ from convergence import (
     VARIANTS,
     job_folder,
     read_progress,
+    read_reevaluation,
     reevaluations,
     seed_verdict,
 )
@@ -280,8 +281,8 @@ def target_table(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]
                     f"{again_passed} of {sum(map(len, again.values()))} (seeds {', '.join(map(str, again))}; "
                     f"every one: {_seed_count(every, len(again))})"
                 )
-            verdicts = {s: seed_verdict(out, env_id, variant, s, [r["timesteps"] for r in seeds[s][n:]])
-                        for s, n in split.items()}  # fmt: skip
+            verdicts = {s: seed_verdict(read_reevaluation(out, env_id, variant, s), [r["timesteps"] for r in seeds[s][n:]],
+                                        target) for s, n in split.items()}  # fmt: skip
             declared_cell = "—"
             if any(verdict is not None for verdict in verdicts.values()):
                 declared_cell = _seed_count({s for s, v in verdicts.items() if v}, len(seeds)) + " pass"
