@@ -28,6 +28,9 @@ DIR/<timesteps> is the study's folder as it stood then (``--out`` of ``report``,
 evaluates every kept checkpoint past ``--after`` (and each run's own last one) again, the study's way (deterministic
 policy, VecNormalize statistics of the checkpoint, the env seeded once) on more episodes from another reset seed,
 into <out>/<env>/<variant>/seed<k>/reevaluation.csv; a checkpoint already evaluated so is not evaluated again.
+``reevaluate --confirm --after 2000000`` runs the Grasper's declared reading (docs/benchmarks.md) end to end: every
+checkpoint on 100 episodes from reset seed 20,000, then each one below the target on 200 more from each of 30,000 and
+40,000 (the 500 pooled decide), and prints each run's verdict.
 """
 
 from __future__ import annotations
@@ -683,6 +686,35 @@ def reevaluate(
               f"(lowest {lowest:.3f})")  # fmt: skip
 
 
+def confirm(kept: Path, out: Path, envs: Sequence[str], variants: Sequence[str], seeds: Sequence[int], after: int,
+            jobs: int) -> dict[tuple[str, str, int], bool | None]:  # fmt: skip
+    """The declared reading end to end: every checkpoint past ``after`` on REEVALUATION_EPISODES from REEVALUATION_SEED,
+    then each one those leave undecided (below the env's target) on CONFIRMATION_EPISODES from each of
+    CONFIRMATION_SEEDS; evaluations already recorded are not run again. Prints and returns each run's verdict."""
+    reevaluate(kept, out, envs, variants, seeds, after, REEVALUATION_EPISODES, REEVALUATION_SEED, jobs)
+    verdicts = {}
+    for env_id, variant, seed in [(e, v, s) for e in envs for v in variants for s in seeds]:
+        target, checkpoints = TARGETS[env_id], list(checkpoints_after(kept, out, env_id, variant, seed, after))
+        rows = read_reevaluation(out, env_id, variant, seed)
+        if undecided := [t for t in checkpoints if checkpoint_verdict(at(rows, t), target) is None]:
+            for reset_seed in CONFIRMATION_SEEDS:
+                reevaluate(kept, out, [env_id], [variant], [seed], after, CONFIRMATION_EPISODES, reset_seed, jobs, undecided)
+            rows = read_reevaluation(out, env_id, variant, seed)
+        verdicts[env_id, variant, seed] = verdict = seed_verdict(rows, checkpoints, target)
+        word = "undecided" if verdict is None else "pass" if verdict else "FAIL"
+        confirmed = ", ".join(f"{t}: {pooled_success(at(rows, t)):.3f}" for t in undecided)
+        episodes = REEVALUATION_EPISODES + len(CONFIRMATION_SEEDS) * CONFIRMATION_EPISODES
+        print(f"{env_id} {variant} seed{seed}: {word} ({len(checkpoints)} checkpoints past {after}; below {target} on "
+              f"{REEVALUATION_EPISODES} episodes: {len(undecided)}{f', on {episodes}: {confirmed}' if undecided else ''})",
+              flush=True)  # fmt: skip
+    return verdicts
+
+
+def at(rows: Sequence[dict[str, float]], timesteps: float) -> list[dict[str, float]]:
+    """The re-evaluations of the checkpoint at ``timesteps``."""
+    return [row for row in rows if row["timesteps"] == timesteps]
+
+
 def read_reevaluation(out: Path, env_id: str, variant: str, seed: int) -> list[dict[str, float]]:
     return read_progress(job_folder(out, env_id, variant, seed), "reevaluation.csv")
 
@@ -702,22 +734,32 @@ def checkpoint_verdict(rows: Sequence[dict[str, float]], target: float) -> bool 
     """The declared reading at one checkpoint, from its re-evaluations: at or above ``target`` on REEVALUATION_EPISODES
     episodes from REEVALUATION_SEED or, where those fall below it, on them and CONFIRMATION_EPISODES from each of
     CONFIRMATION_SEEDS together (successes pooled); None while an evaluation it needs has not been run."""
-    protocol = {REEVALUATION_SEED: REEVALUATION_EPISODES, **dict.fromkeys(CONFIRMATION_SEEDS, CONFIRMATION_EPISODES)}
-    runs = {int(r["reset_seed"]): r for r in rows if protocol.get(int(r["reset_seed"])) == r["episodes"]}
+    runs = _protocol_runs(rows)
     if REEVALUATION_SEED not in runs:
         return None
     if runs[REEVALUATION_SEED]["eval_success"] >= target:
         return True
-    if len(runs) < len(protocol):
+    if len(runs) < 1 + len(CONFIRMATION_SEEDS):
         return None
-    successes = sum(round(r["eval_success"] * r["episodes"]) for r in runs.values())
-    return successes / sum(r["episodes"] for r in runs.values()) >= target
+    return pooled_success(rows) >= target
+
+
+def _protocol_runs(rows: Sequence[dict[str, float]]) -> dict[int, dict[str, float]]:
+    """Reset seed -> the re-evaluation of one checkpoint's ``rows`` on that seed's episode count of the protocol."""
+    protocol = {REEVALUATION_SEED: REEVALUATION_EPISODES, **dict.fromkeys(CONFIRMATION_SEEDS, CONFIRMATION_EPISODES)}
+    return {int(r["reset_seed"]): r for r in rows if protocol.get(int(r["reset_seed"])) == r["episodes"]}
+
+
+def pooled_success(rows: Sequence[dict[str, float]]) -> float:
+    """One checkpoint's success rate over all the protocol's episodes among its re-evaluations ``rows``."""
+    runs = _protocol_runs(rows).values()
+    return sum(round(r["eval_success"] * r["episodes"]) for r in runs) / sum(r["episodes"] for r in runs)
 
 
 def seed_verdict(rows: Sequence[dict[str, float]], checkpoints: Sequence[float], target: float) -> bool | None:
     """The declared reading for one run, from its re-evaluations: False if a checkpoint of ``checkpoints`` fails it,
     True if every one passes, None while one is undecided."""
-    verdicts = [checkpoint_verdict([r for r in rows if r["timesteps"] == t], target) for t in checkpoints]
+    verdicts = [checkpoint_verdict(at(rows, t), target) for t in checkpoints]
     return False if False in verdicts else None if None in verdicts else True
 
 
@@ -802,10 +844,15 @@ def main(argv: Sequence[str] | None = None) -> None:
     again.add_argument("--variants", nargs="+", required=True, choices=list(VARIANTS))
     again.add_argument("--seeds", type=int, nargs="+", required=True)
     again.add_argument("--after", type=int, default=0, help="only checkpoints past these timesteps")
-    again.add_argument("--episodes", type=int, default=REEVALUATION_EPISODES)
-    again.add_argument("--reset-seed", type=int, default=REEVALUATION_SEED, help="not the study's 10,000")
+    again.add_argument("--episodes", type=int, default=None, help=f"default {REEVALUATION_EPISODES}")
+    again.add_argument("--reset-seed", type=int, default=None, help=f"not the study's 10,000; default {REEVALUATION_SEED}")
     again.add_argument("--jobs", type=int, default=2)
     again.add_argument("--timesteps", type=int, nargs="+", default=None, help="only the checkpoints at these")
+    again.add_argument(
+        "--confirm", action="store_true",
+        help=f"the declared reading: {REEVALUATION_EPISODES} episodes from {REEVALUATION_SEED}, then "
+        f"{CONFIRMATION_EPISODES} from each of {', '.join(map(str, CONFIRMATION_SEEDS))} where those fall below the target",
+    )  # fmt: skip
     for command in (run, job, report, agents, again):
         command.add_argument("--out", default=str(OUT))
     for command in (run, job):
@@ -819,18 +866,15 @@ def main(argv: Sequence[str] | None = None) -> None:
         run_study(args.envs, args.variants, args.seeds, args.jobs, out, args.steps, args.keep_checkpoints)
     elif args.command == "job":
         run_job(args.env, args.variant, args.seed, args.steps, out, args.keep_checkpoints)
+    elif args.command == "reevaluate" and args.confirm:
+        if given := [f"--{n.replace('_', '-')}" for n in ("episodes", "reset_seed", "timesteps") if getattr(args, n)]:
+            parser.error(f"reevaluate --confirm sets the episodes and checkpoints itself; drop {' '.join(given)}")
+        confirm(args.kept, out, args.envs, args.variants, args.seeds, args.after, args.jobs)
     elif args.command == "reevaluate":
+        episodes = REEVALUATION_EPISODES if args.episodes is None else args.episodes
+        reset_seed = REEVALUATION_SEED if args.reset_seed is None else args.reset_seed
         reevaluate(
-            args.kept,
-            out,
-            args.envs,
-            args.variants,
-            args.seeds,
-            args.after,
-            args.episodes,
-            args.reset_seed,
-            args.jobs,
-            args.timesteps,
+            args.kept, out, args.envs, args.variants, args.seeds, args.after, episodes, reset_seed, args.jobs, args.timesteps
         )
     elif args.command == "report":
         from convergence_report import write_report  # benchmarks/convergence_report.py

@@ -315,6 +315,44 @@ def test_kept_checkpoints_are_the_study_as_it_stood_after_each_chunk(
         convergence.main([*again, "--timesteps", "4096", "--episodes", "4"])
 
 
+def test_confirm_runs_the_declared_reading_on_the_checkpoints_it_leaves_undecided(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``reevaluate --confirm`` (protocol shrunk to 2 episodes, then 3 from each of two seeds; target 0.5): a checkpoint
+    already at the target on the first evaluation is not confirmed, one below it is, on both seeds; the verdict is
+    ``seed_verdict`` of the rows written; a rerun evaluates nothing; a hand-picked count is refused."""
+    monkeypatch.setattr(convergence, "REEVALUATION_EPISODES", 2)
+    monkeypatch.setattr(convergence, "CONFIRMATION_EPISODES", 3)
+    monkeypatch.setattr(convergence, "CONFIRMATION_SEEDS", (7, 8))
+    monkeypatch.setitem(convergence.TARGETS, "Reacher2D-v1", 0.5)
+    out, kept = tmp_path / "runs", tmp_path / "kept"
+    convergence.main(["job", "--env", "Reacher2D-v1", "--variant", "plain", "--seed", "0", "--steps", "4096",
+                      "--out", str(out), "--keep-checkpoints", str(kept)])  # fmt: skip
+    at_target = {"timesteps": 2048, "episodes": 2, "reset_seed": convergence.REEVALUATION_SEED, "eval_success": 0.5}
+    convergence._write_reevaluation(out, "Reacher2D-v1", "plain", 0, {**at_target, "eval_return": 0.0})
+    command = ["reevaluate", "--kept", str(kept), "--out", str(out), "--envs", "Reacher2D-v1", "--variants", "plain",
+               "--seeds", "0", "--jobs", "1", "--confirm"]  # fmt: skip
+    convergence.main(command)
+    rows = convergence.read_reevaluation(out, "Reacher2D-v1", "plain", 0)
+    first = [r for r in rows if r["timesteps"] == 4096 and r["episodes"] == 2]
+    assert len(first) == 1 and first[0]["eval_success"] < 0.5  # a 4096-step Reacher misses the target: confirmed
+    assert [(r["timesteps"], r["episodes"], r["reset_seed"]) for r in rows] == [
+        (2048, 2, 20_000), (4096, 2, 20_000), (4096, 3, 7), (4096, 3, 8)
+    ]  # fmt: skip
+    successes = sum(round(r["eval_success"] * r["episodes"]) for r in rows if r["timesteps"] == 4096)
+    assert convergence.pooled_success(convergence.at(rows, 4096)) == successes / 8
+    verdict = "pass" if successes >= 4 else "FAIL"
+    assert f"Reacher2D-v1 plain seed0: {verdict} (2 checkpoints past 0; below 0.5 on 2 episodes: 1, on 8: 4096: " in (
+        capsys.readouterr().out
+    )
+    convergence.main(command)
+    assert "0 checkpoints to evaluate" in capsys.readouterr().out
+    assert convergence.read_reevaluation(out, "Reacher2D-v1", "plain", 0) == rows
+    with pytest.raises(SystemExit):
+        convergence.main([*command, "--episodes", "5"])
+    assert "drop --episodes" in capsys.readouterr().err
+
+
 def test_runs_with_a_schedule_are_not_shipped_as_agents() -> None:
     """``agents`` ships a run whose settings config.yml can hold: env kwargs (enjoy applies them), not a schedule."""
     assert convergence_report.not_an_agent("warm_scripted25_late") is None
