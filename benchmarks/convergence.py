@@ -702,10 +702,12 @@ def confirm(kept: Path, out: Path, envs: Sequence[str], variants: Sequence[str],
             rows = read_reevaluation(out, env_id, variant, seed)
         verdicts[env_id, variant, seed] = verdict = seed_verdict(rows, checkpoints, target)
         word = "undecided" if verdict is None else "pass" if verdict else "FAIL"
-        confirmed = ", ".join(f"{t}: {pooled_success(at(rows, t)):.3f}" for t in undecided)
+        first = {t: _protocol_runs(at(rows, t)).get(REEVALUATION_SEED) for t in checkpoints}
+        below = [t for t, row in first.items() if row is not None and row["eval_success"] < target]  # now or earlier
+        confirmed = ", ".join(f"{t}: {pooled_success(at(rows, t)):.3f}" for t in below)
         episodes = REEVALUATION_EPISODES + len(CONFIRMATION_SEEDS) * CONFIRMATION_EPISODES
         print(f"{env_id} {variant} seed{seed}: {word} ({len(checkpoints)} checkpoints past {after}; below {target} on "
-              f"{REEVALUATION_EPISODES} episodes: {len(undecided)}{f', on {episodes}: {confirmed}' if undecided else ''})",
+              f"{REEVALUATION_EPISODES} episodes: {len(below)}{f', on {episodes}: {confirmed}' if below else ''})",
               flush=True)  # fmt: skip
     return verdicts
 
