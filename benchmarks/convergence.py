@@ -869,7 +869,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     elif args.command == "job":
         run_job(args.env, args.variant, args.seed, args.steps, out, args.keep_checkpoints)
     elif args.command == "reevaluate" and args.confirm:
-        if given := [f"--{n.replace('_', '-')}" for n in ("episodes", "reset_seed", "timesteps") if getattr(args, n)]:
+        names = ("episodes", "reset_seed", "timesteps")
+        if given := [f"--{n.replace('_', '-')}" for n in names if getattr(args, n) is not None]:
             parser.error(f"reevaluate --confirm sets the episodes and checkpoints itself; drop {' '.join(given)}")
         confirm(args.kept, out, args.envs, args.variants, args.seeds, args.after, args.jobs)
     elif args.command == "reevaluate":
