@@ -18,7 +18,9 @@ from typing import Any
 import numpy as np
 
 ALGO_CHOICES = ("trpo_plus", "trpo", "ppo")
-TRAINED_AGENTS = Path(__file__).resolve().parents[1] / "trained_agents"  # shipped agents (source checkout)
+# Shipped agents: the source checkout's folder; a wheel carries none, so then ./trained_agents (a clone or a download)
+_CHECKOUT_AGENTS = Path(__file__).resolve().parents[1] / "trained_agents"
+TRAINED_AGENTS = _CHECKOUT_AGENTS if _CHECKOUT_AGENTS.is_dir() else Path("trained_agents")
 
 
 def _default_folder(algo: str, env: str) -> str:

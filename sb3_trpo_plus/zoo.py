@@ -17,7 +17,9 @@ from torch import nn
 if TYPE_CHECKING:
     from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
-ZOO_DIR = Path(__file__).resolve().parent.parent / "zoo_hyperparams"
+# An installed wheel carries the recipes as package data; a source checkout (or editable install) has the top-level folder
+_PACKAGED_ZOO_DIR = Path(__file__).resolve().parent / "zoo_hyperparams"
+ZOO_DIR = _PACKAGED_ZOO_DIR if _PACKAGED_ZOO_DIR.is_dir() else Path(__file__).resolve().parent.parent / "zoo_hyperparams"
 ALGO_FILES = {"trpo_plus": "trpo_plus.yml", "trpo": "trpo.yml", "ppo": "ppo.yml"}
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
