@@ -32,16 +32,17 @@ _INSTABILITY_WARNINGS = np.array(
 )
 
 
-def derived_docstring(earlier_doc: str, earlier_id: str, replacements: dict[str, str], version_entry: str) -> str:
-    """A later version's docstring: ``earlier_doc`` with each replacement made once, and ``version_entry`` (its
-    Version History line) appended. A replacement whose text the earlier docstring no longer has raises, so an
-    edit of the earlier version cannot silently drop a later version's change."""
-    doc = earlier_doc
-    for old, new in replacements.items():
-        if old not in doc:
-            raise ValueError(f"{earlier_id}'s docstring lost {old!r}")
-        doc = doc.replace(old, new, 1)
-    return doc.rstrip() + version_entry
+def near_bonus(distance: float, weight: float, scale: float) -> float:
+    """The reachers' precision term ``weight (1 - tanh(distance / scale))``: bounded in ``[0, weight]`` and steepest at
+    the target, so that the last centimetres before it pay."""
+    return weight * (1.0 - float(np.tanh(distance / scale)))
+
+
+def check_near_bonus(weight: float, scale: float) -> None:
+    if not scale > 0:
+        raise ValueError(f"near_scale must be positive, got {scale}")
+    if not weight >= 0:
+        raise ValueError(f"reward_near_weight must be non-negative, got {weight}")
 
 
 def asset_path(xml_file: str) -> str:

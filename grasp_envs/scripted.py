@@ -85,8 +85,10 @@ def grasper3d_policy(env: ArmEnv, lift: bool = True, hold_height: float | None =
     approach *= min(1.0, max_speed / max(float(np.linalg.norm(approach)), 1e-9))
     if servo:
         claw = SERVO_GRIP_COMMAND if claw > 0 else -1.0
-    grip_speed = getattr(env, "max_grip_speed", None)  # v2: the action is the grip velocity itself
-    arm = approach / grip_speed if grip_speed else grip_down_commands(env, approach)
+    if getattr(env, "control", "joint_torque") == "grip_velocity":  # the action is the grip velocity itself
+        arm = approach / env.max_grip_speed  # type: ignore[attr-defined]
+    else:
+        arm = grip_down_commands(env, approach)
     return np.clip(np.concatenate([arm, [claw]]), env.action_space.low, env.action_space.high)
 
 
@@ -103,4 +105,5 @@ SCRIPTED_POLICIES = {
     "Grasper3D-v4": grasper3d_policy,
     "Grasper3D-v5": grasper3d_policy,
     "Grasper3D-v6": grasper3d_policy,
+    "Grasper3D-v7": grasper3d_policy,
 }

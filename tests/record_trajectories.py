@@ -24,7 +24,9 @@ OUT = Path(__file__).resolve().parent / "data" / "trajectories"
 EPISODES = 3
 
 
-def record(env_id: str, env_kwargs: dict[str, Any], wrapper: Any = None, seed: int = 7, episodes: int = EPISODES) -> dict[str, np.ndarray]:
+def record(
+    env_id: str, env_kwargs: dict[str, Any], wrapper: Any = None, seed: int = 7, episodes: int = EPISODES
+) -> dict[str, np.ndarray]:
     env = gym.make(env_id, **env_kwargs)
     if wrapper is not None:
         env = wrapper(env)
@@ -46,7 +48,9 @@ def record(env_id: str, env_kwargs: dict[str, Any], wrapper: Any = None, seed: i
             else:
                 action = policy(env.unwrapped)
                 if episode % 3 == 2:
-                    action = np.clip(action + rng.normal(0, 0.2, size=action.shape), env.action_space.low, env.action_space.high)
+                    action = np.clip(
+                        action + rng.normal(0, 0.2, size=action.shape), env.action_space.low, env.action_space.high
+                    )
             observation, reward, term, trunc, info = env.step(action)
             done = term or trunc
             observations.append(observation)

@@ -1,4 +1,4 @@
-"""WallReacher3D-v0: reach a target behind a wall without touching it (thesis section 5.2.4)."""
+"""WallReacher3D: reach a target behind a wall without touching it (thesis section 5.2.4)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from gymnasium import utils
 from numpy.typing import NDArray
 
 from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D
-from grasp_envs.reacher3d_v0 import FLOOR_Z, TARGET_HALF_SIZE, Reacher3DEnv
+from grasp_envs.reacher3d import FLOOR_Z, TARGET_HALF_SIZE, Reacher3DEnv
 
 WALL_CAMERA_CONFIG: dict[str, Any] = {**DEFAULT_CAMERA_CONFIG_3D, "azimuth": 90.0, "elevation": -60.0}
 ARM_GEOMS = ["upper_arm", "forearm"]
@@ -108,8 +108,10 @@ class WallReacher3DEnv(Reacher3DEnv):
         **kwargs: Any,
     ):
         utils.EzPickle.__init__(
-            self, xml_file, frame_skip, default_camera_config, reward_dist_weight, reward_control_weight,
-            reward_wall_weight, reward_proximity_weight, reset_noise_scale, success_distance, **kwargs,
+            self, xml_file=xml_file, frame_skip=frame_skip, default_camera_config=default_camera_config,
+            reward_dist_weight=reward_dist_weight, reward_control_weight=reward_control_weight,
+            reward_wall_weight=reward_wall_weight, reward_proximity_weight=reward_proximity_weight,
+            reset_noise_scale=reset_noise_scale, success_distance=success_distance, **kwargs,
         )  # fmt: skip
         self._init_reacher(reward_dist_weight, reward_control_weight, reset_noise_scale, success_distance)
         self._reward_wall_weight = reward_wall_weight

@@ -1,0 +1,647 @@
+"""Grasper3D: grasp a 24 mm cube and lift it (thesis section 5.2.3). One class; every registered version is a preset."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import mujoco
+import numpy as np
+from gymnasium import utils
+from gymnasium.spaces import Box
+from numpy.typing import NDArray
+
+from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, asset_path
+from grasp_envs.control import grip_down_commands
+
+ARM_JOINTS = ("shoulder_y", "shoulder_z", "elbow_y", "elbow_z", "forearm_roll")
+CLAW_SIDES = ("right", "left")
+CLAW_PARTS = ("outer_top", "inner_top", "outer_bottom", "inner_bottom")
+FLOOR_Z = -0.2
+CUBE_HALF_SIZE = 0.012
+
+REWARD_MODES = ("staged", "thesis")
+CLAWS = {"torque": "grasper3d.xml", "servo": "grasper3d_v1.xml"}  # claw -> the model it comes with
+CONTROLS = ("joint_torque", "grip_velocity")
+IK_MODES = ("weighted", "priority")
+OBSERVATIONS = ("joint", "task")
+REACH_DISTANCES = ("grip", "claw_segment")
+GRASP_TESTS = ("touch", "between", "per_axis")
+
+MAX_GRIP_SPEED = 0.4  # m/s of the grip site at an action of 1
+CLAW_OPEN_TARGET, CLAW_SERVO_SLOPE = -0.3, 0.4  # the servo claw aims at -0.3 + 0.4 c rad
+CLAW_TARGET_RANGE = (-0.7, 0.1)  # what the servo can aim at (ctrl in [-1, 1])
+# Claw servo torque (N m) at which reward_squeeze saturates. Measured with the scripted grasp (10 seeded episodes,
+# median torque while grasped): command 0.42 gives 0.21 N m, 0.5 gives 0.29, 0.7 gives 0.51, 1.0 gives 0.78; the
+# halves first touch the cube at a command of about 0.375.
+SQUEEZE_TORQUE = 0.5
+# grasp_test "between": how far (m) the cube's centre may lie from the segment between the claw sites, in all
+BETWEEN_TOLERANCE = 0.02
+# grasp_test "per_axis": the same along the forearm and along the claw's hinge axis, each. The inner capsules span
+# 1.25 cm either side of the sites along the forearm and are 6 mm thick, the cube's half-size is 1.2 cm: a cube held by
+# the tips sits up to ~2.45 cm out, one pressed from beyond the tips >= 3.05 cm. Along the hinge axis the capsules sit
+# at +-0.8 cm: any grip of a side face is within 2.6 cm.
+PER_AXIS_TOLERANCE = 0.025
+
+CUBE_ROTATION_JOINT = "cube_rotation"
+CUBE_ROTATION_DAMPING = 1e-4  # N m s/rad per axis; the cube's inertia is 1.3e-6 kg m^2 about each axis
+# cube_rotation -> the joint that lets the cube turn: "yaw" about the world's vertical (it stays upright), "free" about
+# every axis (it can also tip over: the claw tumbles it on the floor and learning was slower)
+CUBE_ROTATIONS: dict[str, dict[str, Any]] = {
+    "yaw": {"type": mujoco.mjtJoint.mjJNT_HINGE, "axis": [0.0, 0.0, 1.0]},
+    "free": {"type": mujoco.mjtJoint.mjJNT_BALL},
+}
+# start_pose -> the arm's joint angles before the reset noise (shoulder_y, shoulder_z, elbow_y, elbow_z, forearm_roll):
+# "stretched", the thesis' (horizontal along +x); "ready", the upper arm pitched 30 deg up and the forearm pointing
+# down, the grip 8.7 cm out along +x and 7 cm above the cube's top face, as manipulation benchmarks start
+# (Gymnasium Robotics' Fetch: the gripper above the table)
+START_POSES: dict[str, tuple[float, ...]] = {
+    "stretched": (0.0, 0.0, 0.0, 0.0, 0.0),
+    "ready": (-np.pi / 6, 0.0, 2 * np.pi / 3, 0.0, 0.0),
+}
+# observation="task" keeps these rows of the joint-space observation: everything but the arm's joint angles and
+# joint velocities (the claw angle, the claw velocity, the cube, the claw sites relative to it, the contacts, and the
+# claw torque where it is observed)
+TASK_KEPT_JOINT_ROWS = np.r_[10, 16:32]
+
+
+class Grasper3DEnv(ArmEnv):
+    r"""
+    ## Description
+    Reacher3D's arm (hanging from the ceiling, shoulder at the origin, floor at z = -0.2 m) plus a forearm roll hinge
+    and a two-part claw (thesis 5.2.3): each half is a hinge about the forearm's z axis (range ±40°) carrying four
+    capsules (inner/outer, top/bottom, radius 6 mm); an equality constraint keeps the left half at minus the right
+    half. The claw must grasp a 24 mm cube that rests on the floor and lift it at least 0.05 m.
+
+    `gymnasium.make("Grasper3D-v7")` is the recommended version: the defaults below. `Grasper3D-v0` is the thesis'
+    task; `-v1` to `-v6` are the design steps that made it learnable (Version History), each a preset of the options.
+
+    ## Action Space
+    `control="grip_velocity"` (default): `Box(-1, 1, (4,), float32)`: the grip site's velocity $v = 0.4 a_{0:3}$ m/s
+    (`max_grip_speed`) in world x, y, z, then the claw command $c$. Each step the environment solves the inverse
+    kinematics for that velocity on MuJoCo's Jacobians with the claw's closing axis kept horizontal and the forearm
+    turned to point down, and drives the five arm motors with a gravity-compensated joint-velocity servo
+    (`grasp_envs.control.grip_down_commands`). `ik_mode="priority"` (default): task-priority inverse kinematics, the
+    forearm turns down only in the joint direction the grip and the closing axis leave free; `"weighted"`: one damped
+    least-squares stack of five rows, where the grip stalls wherever the arm cannot move it with the forearm down.
+    The claw's yaw is left free.
+
+    `control="joint_torque"`: `Box(-0.5, 0.5, (6,), float32)` with `claw="torque"`, the thesis' action: torques on
+    `shoulder_y`, `shoulder_z`, `elbow_y`, `elbow_z`, `forearm_roll` (gear 200) and on the claw (gear 100; positive
+    closes); with `claw="servo"` the last entry is the claw command in [-1, 1].
+
+    The claw command $c$ with `claw="servo"` (default): a position servo on `claw_right` aims at the angle
+    $0.4 c - 0.3$ rad (kp 10 N m/rad, force limited to 5 N m), so $c = 0$ holds the claw half open (34 mm between the
+    tips, the cube is 24 mm), $c = -1$ opens it fully (-40°) and $c = 1$ closes it. With `claw_rate` $r$, each step's
+    claw action moves the servo's target by $r c$ rad instead (within [-0.7, 0.1]; the target is not observed).
+
+    ## Observation Space
+    `Box(-inf, inf, (N,), float64)`. `observation="task"` (default): N = 32, the rows of this table:
+
+    | Num | Observation | Unit | When |
+    |-----|-------------|------|------|
+    | 0 | grip site velocity x | m/s | always |
+    | 1 | grip site velocity y | m/s | always |
+    | 2 | grip site velocity z | m/s | always |
+    | 3 | forearm axis x (unit vector from the elbow along the forearm; -z when it points down) | unitless | always |
+    | 4 | forearm axis y | unitless | always |
+    | 5 | forearm axis z | unitless | always |
+    | 6 | claw hinge axis x (unit vector; the halves close about it) | unitless | always |
+    | 7 | claw hinge axis y | unitless | always |
+    | 8 | claw hinge axis z | unitless | always |
+    | 9 | claw opening angle `claw_right` (negative is open) | rad | always |
+    | 10 | angular velocity of `claw_right` | rad/s | always |
+    | 11 | cube x | m | always |
+    | 12 | cube y | m | always |
+    | 13 | cube z | m | always |
+    | 14 | palm x - cube x | m | always |
+    | 15 | palm y - cube y | m | always |
+    | 16 | palm z - cube z | m | always |
+    | 17 | right claw x - cube x | m | always |
+    | 18 | right claw y - cube y | m | always |
+    | 19 | right claw z - cube z | m | always |
+    | 20 | left claw x - cube x | m | always |
+    | 21 | left claw y - cube y | m | always |
+    | 22 | left claw z - cube z | m | always |
+    | 23 | right claw half touches the cube | unitless | always |
+    | 24 | left claw half touches the cube | unitless | always |
+    | 25 | claw servo torque on `claw_right` (positive closes) | N m | `observe_claw_torque` |
+    | 26 | cube x axis x (unit vector along the cube's edge that starts along world x) | unitless | `cube_rotation` |
+    | 27 | cube x axis y | unitless | `cube_rotation` |
+    | 28 | cube x axis z | unitless | `cube_rotation` |
+    | 29 | cube z axis x (along the edge that starts vertical; (0, 0, 1) unless `"free"`) | unitless | `cube_rotation` |
+    | 30 | cube z axis y | unitless | `cube_rotation` |
+    | 31 | cube z axis z | unitless | `cube_rotation` |
+
+    `observation="joint"`: the arm's joint angles and velocities instead of the grip velocity and the axes:
+
+    | Num | Observation | Unit | When |
+    |-----|-------------|------|------|
+    | 0 | cos of `shoulder_y` | unitless | always |
+    | 1 | cos of `shoulder_z` | unitless | always |
+    | 2 | cos of `elbow_y` | unitless | always |
+    | 3 | cos of `elbow_z` | unitless | always |
+    | 4 | cos of `forearm_roll` | unitless | always |
+    | 5 | sin of `shoulder_y` | unitless | always |
+    | 6 | sin of `shoulder_z` | unitless | always |
+    | 7 | sin of `elbow_y` | unitless | always |
+    | 8 | sin of `elbow_z` | unitless | always |
+    | 9 | sin of `forearm_roll` | unitless | always |
+    | 10 | claw opening angle `claw_right` (negative is open) | rad | always |
+    | 11 | angular velocity of `shoulder_y` | rad/s | always |
+    | 12 | angular velocity of `shoulder_z` | rad/s | always |
+    | 13 | angular velocity of `elbow_y` | rad/s | always |
+    | 14 | angular velocity of `elbow_z` | rad/s | always |
+    | 15 | angular velocity of `forearm_roll` | rad/s | always |
+    | 16 | angular velocity of `claw_right` | rad/s | always |
+    | 17 | cube x | m | always |
+    | 18 | cube y | m | always |
+    | 19 | cube z | m | always |
+    | 20 | palm x - cube x | m | always |
+    | 21 | palm y - cube y | m | always |
+    | 22 | palm z - cube z | m | always |
+    | 23 | right claw x - cube x | m | always |
+    | 24 | right claw y - cube y | m | always |
+    | 25 | right claw z - cube z | m | always |
+    | 26 | left claw x - cube x | m | always |
+    | 27 | left claw y - cube y | m | always |
+    | 28 | left claw z - cube z | m | always |
+    | 29 | right claw half touches the cube | unitless | always |
+    | 30 | left claw half touches the cube | unitless | always |
+    | 31 | claw servo torque on `claw_right` (positive closes) | N m | `observe_claw_torque` |
+    | 32 | cube x axis x | unitless | `cube_rotation` |
+    | 33 | cube x axis y | unitless | `cube_rotation` |
+    | 34 | cube x axis z | unitless | `cube_rotation` |
+    | 35 | cube z axis x | unitless | `cube_rotation` |
+    | 36 | cube z axis y | unitless | `cube_rotation` |
+    | 37 | cube z axis z | unitless | `cube_rotation` |
+
+    `claw="torque"` is the thesis' 50 N m claw motor (`grasper3d.xml`). With `cube_rotation`, the cube's orientation
+    is observed. A row whose option is off (`observe_claw_torque=False`, `cube_rotation=None`) is left out; the rows after it
+    move up. The task-space rows are those of Gymnasium Robotics' Fetch, which observes no joints: two arm
+    configurations that hold the claw in the same place look the same.
+
+    ## Rewards
+    Computed after the physics step; every term is in `info` as `reward_<term>`.
+
+    `reward_mode="staged"` (default): reach, then grasp, then lift, then hold; no term can be farmed: holding the
+    cube up earns the most on *every* step, so the best return needs a grasp, a lift and a hold.
+
+    - `reward_reach` $= w_{reach} (1 - \tanh(10 e))$, `reward_reach_weight` (1). `reach_distance="claw_segment"`
+      (default): the thesis' claw terms $e = \lVert p_{right} - p_{cube} \rVert + \lVert p_{left} - p_{cube} \rVert
+      - \lVert p_{left} - p_{right} \rVert \ge 0$, zero exactly when the cube's centre lies on the segment between
+      the claw sites (straddled); `"grip"`: $e = \lVert p_{grip} - p_{cube} \rVert$
+    - `reward_grasp` $= w_{grasp} \cdot n / 8$ with $n$ the claw capsules touching the cube (0..8),
+      `reward_grasp_weight` (4): the thesis' contact shaping, bounded and smaller than the lift terms
+    - `reward_lift` $= w_{lift} \min(h / 0.05, 1)$ while grasped, `reward_lift_weight` (4); $h$ is the height of the
+      cube's bottom face above the floor, measured from its geom
+    - `reward_hold` $= w_{hold}$ while the task is solved (see Episode End), `reward_hold_weight` (4)
+    - `reward_ctrl` $= -w_{ctrl} \lVert a \rVert^2$, `reward_control_weight` (0.1 in this mode)
+    - `reward_floor` $= -w_{floor}$ while a claw capsule touches the floor, `reward_floor_weight` (1): an open claw
+      pressed onto the floor straddles the cube but cannot close (its tips swing towards the floor)
+    - `reward_squeeze` $= w_{squeeze} \min(\max(\tau, 0) / 0.5, 1)$ while grasped, with $\tau$ the claw servo's torque
+      (N m; `squeeze_torque` 0.5), `reward_squeeze_weight` (2): a firm grip, one that the policy's own exploration
+      noise on the claw command does not open when the arm rises
+
+    `reward_mode="thesis"`: the thesis' reward, with its bugs fixed (after the physics step, contacts by geom name,
+    height from the cube geom):
+
+    - `reward_dist` $= -\lVert p_{palm} - p_{cube} \rVert - \lVert p_{right} - p_{cube} \rVert
+      - \lVert p_{left} - p_{cube} \rVert + \lVert p_{left} - p_{right} \rVert$
+    - `reward_ctrl` $= -w_{ctrl} \lVert a \rVert^2$ (1 in this mode)
+    - `reward_contact` = number of claw capsules touching the cube (0..8)
+    - `reward_floor` = minus the number of bottom claw capsules touching the floor (0..4)
+    - `reward_claw_collision` = minus the number of claw-claw contacts (at most 2), only while at most 4 capsules
+      touch the cube
+    - `reward_lift` $= 1000 + 1000 h$ once $h \ge 0.05$ m with more than 3 capsules on the cube; the episode ends
+
+    `info` also holds `cube_height` (m) and `claw_cube_contacts`.
+
+    ## Starting State
+    Arm in `start_pose`: `"ready"` (default) the upper arm 30° up and the forearm pointing down, the grip 8.7 cm out
+    along +x and 7 cm above the cube's top; `"stretched"` horizontal along +x (the thesis'). Claw closed, joint noise
+    $\mathcal{U}(-s, s)$ with $s$ = `reset_noise_scale` (0.1 rad), velocities $\mathcal{U}(-0.005, 0.005)$. The cube
+    rests on the floor, its edges along the world axes, uniform in the disc of radius 0.1 m under the shoulder.
+
+    ## Episode End
+    Success (`info["is_success"]`): $h \ge 0.05$ m while grasped. Grasped, by `grasp_test`: `"per_axis"` (default)
+    both claw halves touch the cube and its centre projects inside the segment between the claw sites and lies at
+    most 2.5 cm from it along the forearm and along the hinge axis, each; `"between"` the same within 2 cm in all;
+    `"touch"` both halves touch the cube (which pressing it from above also gives).
+    Termination: when `terminate_on_success` (default: only in `reward_mode="thesis"`), on success, or in thesis
+    mode when the lift bonus is paid (height reached with more than 3 capsules on the cube); on `info["unstable"]`.
+    Truncation after 100 steps (`max_episode_steps`).
+
+    ## Arguments
+    | Parameter | Default | Description |
+    |-----------|---------|-------------|
+    | `xml_file` | `None` | MuJoCo model; `None`: the model of `claw` |
+    | `frame_skip` | `2` | physics steps of 0.01 s per action |
+    | `default_camera_config` | oblique view | camera of `render()` |
+    | `claw` | `"servo"` | `"servo"`: a force-limited position servo (`grasper3d_v1.xml`, Version History v1); `"torque"` |
+    | `control` | `"grip_velocity"` | `"grip_velocity"` or `"joint_torque"` (Action Space) |
+    | `ik_mode` | `"priority"` | `"priority"` or `"weighted"` inverse kinematics (`grip_velocity` only) |
+    | `max_grip_speed` | `0.4` | grip-site speed at an action of 1 (m/s; `grip_velocity` only) |
+    | `claw_rate` | `None` | `None`: the claw action is the servo command; $r$: it moves the servo's target (Action Space) |
+    | `observation` | `"task"` | `"task"` or `"joint"` (Observation Space) |
+    | `observe_claw_torque` | `True` | observe the claw servo's torque |
+    | `cube_rotation` | `"yaw"` | `None`: only slides; `"yaw"`: also turns about the vertical; `"free"`: about any axis |
+    | `start_pose` | `"ready"` | the arm's pose before the reset noise: `"ready"` or `"stretched"` (Starting State) |
+    | `reward_mode` | `"staged"` | `"staged"` or `"thesis"` |
+    | `reach_distance` | `"claw_segment"` | what `reward_reach` shrinks: `"claw_segment"` or `"grip"` |
+    | `grasp_test` | `"per_axis"` | `"per_axis"`, `"between"` or `"touch"` (Episode End) |
+    | `reward_reach_weight` | `1.0` | weight of `reward_reach` (staged) |
+    | `reward_grasp_weight` | `4.0` | weight of `reward_grasp` (staged) |
+    | `reward_lift_weight` | `4.0` | weight of `reward_lift` (staged) |
+    | `reward_hold_weight` | `4.0` | weight of `reward_hold` (staged) |
+    | `reward_floor_weight` | `1.0` | weight of `reward_floor` (staged) |
+    | `reward_squeeze_weight` | `2.0` | weight of `reward_squeeze` (staged; needs `claw="servo"` when not 0) |
+    | `squeeze_torque` | `0.5` | claw servo torque at which `reward_squeeze` saturates (N m) |
+    | `reward_control_weight` | `None` | weight of `reward_ctrl`; `None`: 0.1 (staged) or 1 (thesis) |
+    | `terminate_on_success` | `None` | end the episode on success; `None`: only in thesis mode |
+    | `reset_noise_scale` | `0.1` | half-width of the initial joint-angle noise (rad) |
+    | `lift_height` | `0.05` | height of the cube's bottom above the floor that counts as lifted (m) |
+
+    Training aids are not options of the task: starting a share of the training episodes along the scripted grasp
+    is the wrapper `grasp_envs.wrappers.ScriptedStarts`, applied to training envs only.
+
+    ## Version History
+    Each id is a preset of the options above (`grasp_envs.registration.PRESETS`); docs/changelog.md tells what each
+    step measured.
+
+    * v7: v6 with `start_pose="ready"`: the arm starts above the cubes. The recommended version.
+    * v6: v5 with `cube_rotation="yaw"` (the thesis' cube only slides; the claw, turning while it holds it, levered
+      it out).
+    * v5: v4 with `observation="task"`.
+    * v4: v3 with `ik_mode="priority"` and `grasp_test="per_axis"`.
+    * v3: v2 with `reward_squeeze_weight=2` and `observe_claw_torque=True`.
+    * v2: v1 with `control="grip_velocity"` (`ik_mode="weighted"`).
+    * v1: `claw="servo"` (a force-limited position servo whose zero command holds the claw half open; the halves no
+      longer collide at their common hinge and closing stops at 2°; lighter claw joints (armature 0.02, damping 0.5);
+      forearm roll limited to ±90°; grip site 1 cm further out, at 0.155 m along the forearm),
+      `reach_distance="claw_segment"`, `grasp_test="between"`, `reward_floor_weight=1`, grasp, lift and hold weights 4.
+    * v0: the thesis' task, with `claw="torque"`, `control="joint_torque"`, `observation="joint"`, no claw torque
+      observed, `cube_rotation=None`, `start_pose="stretched"`, `reach_distance="grip"`, `grasp_test="touch"`, grasp
+      weight 1, lift and hold weights 2, no floor or squeeze term. Differs from the thesis: staged default reward (the
+      thesis' per-step contact reward can be farmed: a TRPO agent that had learnt to lift went back to touching the
+      cube for whole episodes); cube height from its geom; contacts by geom name; reward after the physics step;
+      cos/sin angles, claw angle, cube-relative claw positions and claw-cube contacts observed; cube in a disc of
+      radius 0.1 m.
+    """
+
+    def __init__(
+        self,
+        xml_file: str | None = None,
+        frame_skip: int = 2,
+        default_camera_config: dict[str, Any] = DEFAULT_CAMERA_CONFIG_3D,
+        claw: str = "servo",
+        control: str = "grip_velocity",
+        ik_mode: str = "priority",
+        max_grip_speed: float = MAX_GRIP_SPEED,
+        claw_rate: float | None = None,
+        observation: str = "task",
+        observe_claw_torque: bool = True,
+        cube_rotation: str | None = "yaw",
+        start_pose: str = "ready",
+        reward_mode: str = "staged",
+        reach_distance: str = "claw_segment",
+        grasp_test: str = "per_axis",
+        reward_reach_weight: float = 1.0,
+        reward_grasp_weight: float = 4.0,
+        reward_lift_weight: float = 4.0,
+        reward_hold_weight: float = 4.0,
+        reward_floor_weight: float = 1.0,
+        reward_squeeze_weight: float = 2.0,
+        squeeze_torque: float = SQUEEZE_TORQUE,
+        reward_control_weight: float | None = None,
+        terminate_on_success: bool | None = None,
+        reset_noise_scale: float = 0.1,
+        lift_height: float = 0.05,
+        **kwargs: Any,
+    ):
+        _check_choice("claw", claw, tuple(CLAWS))
+        _check_choice("control", control, CONTROLS)
+        _check_choice("ik_mode", ik_mode, IK_MODES)
+        _check_choice("observation", observation, OBSERVATIONS)
+        _check_choice("cube_rotation", cube_rotation, (None, *CUBE_ROTATIONS))
+        _check_choice("start_pose", start_pose, tuple(START_POSES))
+        _check_choice("reward_mode", reward_mode, REWARD_MODES)
+        _check_choice("reach_distance", reach_distance, REACH_DISTANCES)
+        _check_choice("grasp_test", grasp_test, GRASP_TESTS)
+        for name, flag in (("observe_claw_torque", observe_claw_torque), ("terminate_on_success", terminate_on_success)):
+            if not (isinstance(flag, bool) or (flag is None and name == "terminate_on_success")):
+                raise ValueError(f"{name} must be a bool{' or None' if name == 'terminate_on_success' else ''}, got {flag!r}")
+        if not max_grip_speed > 0:
+            raise ValueError(f"max_grip_speed must be positive, got {max_grip_speed!r}")
+        if claw_rate is not None and not claw_rate > 0:
+            raise ValueError(f"claw_rate must be positive or None, got {claw_rate!r}")
+        if claw_rate is not None and (control != "grip_velocity" or claw != "servo"):
+            raise ValueError("claw_rate moves the servo claw's target: it needs control='grip_velocity' and claw='servo'")
+        if not squeeze_torque > 0:
+            raise ValueError(f"squeeze_torque must be positive, got {squeeze_torque!r}")
+        if (reward_squeeze_weight or observe_claw_torque) and claw != "servo":
+            raise ValueError(
+                "reward_squeeze_weight and observe_claw_torque read the claw servo's torque: they need claw='servo'"
+            )
+        utils.EzPickle.__init__(
+            self, xml_file=xml_file, frame_skip=frame_skip, default_camera_config=default_camera_config, claw=claw,
+            control=control, ik_mode=ik_mode, max_grip_speed=max_grip_speed, claw_rate=claw_rate,
+            observation=observation, observe_claw_torque=observe_claw_torque, cube_rotation=cube_rotation,
+            start_pose=start_pose, reward_mode=reward_mode, reach_distance=reach_distance, grasp_test=grasp_test,
+            reward_reach_weight=reward_reach_weight, reward_grasp_weight=reward_grasp_weight,
+            reward_lift_weight=reward_lift_weight, reward_hold_weight=reward_hold_weight,
+            reward_floor_weight=reward_floor_weight, reward_squeeze_weight=reward_squeeze_weight,
+            squeeze_torque=squeeze_torque, reward_control_weight=reward_control_weight,
+            terminate_on_success=terminate_on_success, reset_noise_scale=reset_noise_scale, lift_height=lift_height,
+            **kwargs,
+        )  # fmt: skip
+        self.control = control
+        self.max_grip_speed = float(max_grip_speed)
+        self._grip_priority = ik_mode == "priority"
+        self._claw_rate = claw_rate
+        self._claw_target = CLAW_OPEN_TARGET
+        self._observation = observation
+        self._observe_claw_torque = observe_claw_torque
+        self._cube_rotation = cube_rotation  # read while the base class builds the model
+        self._reward_mode = reward_mode
+        self._reach_distance_kind = reach_distance
+        self._grasp_test = grasp_test
+        self._reward_reach_weight = reward_reach_weight
+        self._reward_grasp_weight = reward_grasp_weight
+        self._reward_lift_weight = reward_lift_weight
+        self._reward_hold_weight = reward_hold_weight
+        self._reward_floor_weight = reward_floor_weight
+        self._reward_squeeze_weight = reward_squeeze_weight
+        self._squeeze_torque = float(squeeze_torque)
+        thesis = reward_mode == "thesis"
+        self._reward_control_weight = (1.0 if thesis else 0.1) if reward_control_weight is None else reward_control_weight
+        self._terminate_on_success = thesis if terminate_on_success is None else terminate_on_success
+        self._reset_noise_scale = reset_noise_scale
+        self._lift_height = lift_height
+        self._lift_bonus_paid = False
+        self._contacts = {"right": 0, "left": 0, "floor": 0, "claw_claw": 0, "claw_floor": 0, "between": 0}
+        observation_dim = 31 if observation == "joint" else 25
+        observation_dim += int(observe_claw_torque) + (6 if cube_rotation is not None else 0)
+        ArmEnv.__init__(self, xml_file or CLAWS[claw], frame_skip, default_camera_config, observation_dim, **kwargs)
+        self._ids = self._named_ids()
+        self._arm_qpos = np.array([self.model.joint(j).qposadr[0] for j in ARM_JOINTS])
+        self._cube_qpos = np.array([self.model.joint(f"cube_{a}").qposadr[0] for a in "xyz"])
+        if start_pose != "stretched":
+            self.init_qpos[self._arm_qpos] = START_POSES[start_pose]
+
+    def _initialize_simulation(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        """The model of ``xml_file``, with the cube's rotation joint where ``cube_rotation`` asks for one."""
+        if self._cube_rotation is None:
+            return super()._initialize_simulation()  # type: ignore[no-any-return]
+        spec = mujoco.MjSpec.from_file(self.fullpath)
+        add_cube_rotation(spec, self._cube_rotation)
+        model = spec.compile()
+        model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.width)
+        model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
+        return model, mujoco.MjData(model)
+
+    def _set_action_space(self) -> Box:
+        if self.control == "grip_velocity":
+            self.action_space = Box(low=-1.0, high=1.0, shape=(4,), dtype=np.float32)
+            return self.action_space
+        return super()._set_action_space()  # type: ignore[no-any-return]
+
+    def _named_ids(self) -> dict[str, Any]:
+        """Ids of the named joints, geoms, sites and actuators, looked up once."""
+        model = self.model
+        claw_geoms = {side: self.geom_mask([f"claw_{side}_{part}" for part in CLAW_PARTS]) for side in CLAW_SIDES}
+        return {
+            "claw_geoms": claw_geoms,
+            "all_claw_geoms": claw_geoms["right"] | claw_geoms["left"],
+            "bottom_claw_geoms": self.geom_mask([f"claw_{s}_{p}" for s in CLAW_SIDES for p in CLAW_PARTS if "bottom" in p]),
+            "cube_geom": self.geom_mask(["cube"]),
+            "floor_geom": self.geom_mask(["floor"]),
+            "arm_qvel": np.array([model.joint(j).dofadr[0] for j in ARM_JOINTS]),
+            "claw_qpos": int(model.joint("claw_right").qposadr[0]),
+            "claw_left_qpos": int(model.joint("claw_left").qposadr[0]),
+            "claw_qvel": int(model.joint("claw_right").dofadr[0]),
+            "cube_dofs": np.array([model.joint(f"cube_{a}").dofadr[0] for a in "xyz"]),
+            "cube_body_pos": model.body("cube").pos.copy(),
+            "claw_actuator": int(model.actuator("claw").id),
+            "grip_site": int(model.site("grip").id),
+            "grip_jacobian": np.zeros((3, model.nv)),
+        }
+
+    # ------------------------------------------------------------------ named quantities
+    def cube_pos(self) -> NDArray[np.float64]:
+        return self.data.geom("cube").xpos
+
+    def cube_height(self) -> float:
+        """Height of the cube's bottom face above the floor, from the cube geom (not its body frame)."""
+        return float(self.cube_pos()[2] - CUBE_HALF_SIZE - FLOOR_Z)
+
+    def cube_axes(self) -> NDArray[np.float64]:
+        """The cube's x and z axes in the world frame (the first and last columns of its rotation matrix)."""
+        rotation = self.data.geom("cube").xmat.reshape(3, 3)
+        return np.concatenate([rotation[:, 0], rotation[:, 2]])
+
+    def claw_torque(self) -> float:
+        """The claw servo's torque on ``claw_right`` (N m, positive closes)."""
+        return float(self.data.actuator_force[self._ids["claw_actuator"]])
+
+    def grip_velocity(self) -> NDArray[np.float64]:
+        """Linear velocity of the grip site in the world frame (m/s): its Jacobian times the joint velocities, as
+        Gymnasium Robotics' Fetch observes its grip (``qvel`` is the step's last; MuJoCo's own ``cvel`` lags it by one
+        physics step)."""
+        jacobian = self._ids["grip_jacobian"]
+        mujoco.mj_jacSite(self.model, self.data, jacobian, None, self._ids["grip_site"])
+        return jacobian @ self.data.qvel  # type: ignore[no-any-return]
+
+    def claw_cube_contacts(self) -> dict[str, int]:
+        """Number of capsules of each claw half touching the cube."""
+        pairs, claws, cube = self.contact_pairs(), self._ids["claw_geoms"], self._ids["cube_geom"]
+        return {side: self.touching_geoms(pairs, claws[side], cube) for side in CLAW_SIDES}
+
+    def cube_between_claws(self) -> bool:
+        """Whether the cube's centre lies between the claw halves: its projection on the segment from the right to
+        the left claw site falls inside the segment, and its offset from the segment is small (``grasp_test``:
+        ``"between"`` at most 2 cm in all, a cube held by the top or bottom capsules only sits ~1 cm off the sites'
+        plane and one pressed from above >= 3 cm; ``"per_axis"`` at most 2.5 cm along the forearm and along the
+        claw's hinge axis, each)."""
+        if self._grasp_test == "between":
+            t, offset = self._cube_off_claw_segment()
+            return 0.0 < t < 1.0 and float(np.linalg.norm(offset)) < BETWEEN_TOLERANCE
+        t, offset = self.cube_off_claw_segment_in_forearm_frame()
+        return 0.0 < t < 1.0 and abs(offset[0]) <= PER_AXIS_TOLERANCE and abs(offset[2]) <= PER_AXIS_TOLERANCE
+
+    def _cube_off_claw_segment(self) -> tuple[float, NDArray[np.float64]]:
+        """Where the cube's centre projects on the segment from the right to the left claw site (0 at the right site,
+        1 at the left) and its offset from that projection (world frame, m)."""
+        right, left, cube = self.site_pos("claw_right"), self.site_pos("claw_left"), self.cube_pos()
+        span = left - right
+        t = float((cube - right) @ span / (span @ span))
+        return t, cube - right - t * span
+
+    def cube_off_claw_segment_in_forearm_frame(self) -> tuple[float, NDArray[np.float64]]:
+        """``_cube_off_claw_segment`` with the offset in the forearm's frame (x along the forearm, z the hinge axis)."""
+        t, offset_world = self._cube_off_claw_segment()
+        forearm = self.data.body("forearm").xmat.reshape(3, 3)  # columns: x along the forearm, z the hinge axis
+        return t, forearm.T @ offset_world
+
+    def _contact_summary(self, pairs: NDArray[np.int32]) -> dict[str, int]:
+        """All contact counts the reward, observation and success need, from one read of the contacts."""
+        ids = self._ids
+        claws, cube, floor = ids["claw_geoms"], ids["cube_geom"], ids["floor_geom"]
+        summary = {side: self.touching_geoms(pairs, claws[side], cube) for side in CLAW_SIDES}
+        summary["floor"] = int(self.touching(pairs, ids["bottom_claw_geoms"], floor).sum())
+        summary["claw_claw"] = min(int(self.touching(pairs, claws["right"], claws["left"]).sum()), 2)
+        summary["claw_floor"] = int(self.touching(pairs, ids["all_claw_geoms"], floor).any())
+        summary["between"] = int(self._grasp_test != "touch" and self.cube_between_claws())
+        return summary
+
+    def _is_grasped(self, contacts: dict[str, int]) -> bool:
+        touched = contacts["right"] > 0 and contacts["left"] > 0
+        return touched and (self._grasp_test == "touch" or contacts["between"] > 0)
+
+    def _reach_distance(self) -> float:
+        """The distance ``reward_reach`` shrinks (m): grip site to cube centre, or the thesis' claw terms
+        ``|right - cube| + |left - cube| - |left - right|``, zero exactly when the cube's centre lies on the segment
+        between the claw sites: they pull the claw to straddle the cube, and to open for it, rather than towards a
+        point that a closed claw would press onto the cube."""
+        if self._reach_distance_kind == "grip":
+            return float(np.linalg.norm(self.site_pos("grip") - self.cube_pos()))
+        right, left, cube = self.site_pos("claw_right"), self.site_pos("claw_left"), self.cube_pos()
+        return float(np.linalg.norm(right - cube) + np.linalg.norm(left - cube) - np.linalg.norm(left - right))
+
+    def _is_success(self) -> bool:
+        return self.cube_height() >= self._lift_height and self._is_grasped(self._contacts)
+
+    # ------------------------------------------------------------------ stepping
+    def _simulate(self, action: NDArray[np.float64]) -> bool:
+        if self.control == "joint_torque":
+            return super()._simulate(action)
+        arm = grip_down_commands(self, self.max_grip_speed * action[:3], self._grip_priority)
+        claw = action[3]
+        if self._claw_rate is not None:  # the action moves the servo's target angle; ctrl aims the servo there
+            self._claw_target = float(np.clip(self._claw_target + self._claw_rate * claw, *CLAW_TARGET_RANGE))
+            claw = (self._claw_target - CLAW_OPEN_TARGET) / CLAW_SERVO_SLOPE
+        ctrl = np.clip(np.concatenate([arm, [claw]]), self._ctrl_low, self._ctrl_high)
+        return super()._simulate(ctrl)
+
+    # ------------------------------------------------------------------ reward
+    def _get_rew(self, action: NDArray[np.float64]) -> tuple[float, dict[str, Any]]:
+        contacts = self._contacts
+        height = self.cube_height()
+        ctrl = -self._reward_control_weight * float(np.square(action).sum())
+        cube = self.cube_pos()
+        grasped = self._is_grasped(contacts)
+        n_cube = contacts["right"] + contacts["left"]
+        info: dict[str, Any] = {"cube_height": height, "claw_cube_contacts": n_cube}
+        if self._reward_mode == "thesis":
+            right, left = self.site_pos("claw_right"), self.site_pos("claw_left")
+            lifted = height >= self._lift_height and n_cube > 3
+            self._lift_bonus_paid = lifted
+            terms = {
+                "reward_dist": float(
+                    -np.linalg.norm(self.site_pos("palm") - cube) - np.linalg.norm(right - cube)
+                    - np.linalg.norm(left - cube) + np.linalg.norm(left - right)
+                ),
+                "reward_ctrl": ctrl,
+                "reward_contact": float(n_cube),
+                "reward_floor": -float(contacts["floor"]),
+                "reward_claw_collision": -float(contacts["claw_claw"]) if n_cube <= 4 else 0.0,
+                "reward_lift": 1000.0 + 1000.0 * height if lifted else 0.0,
+            }  # fmt: skip
+            info.update(terms)
+            return float(sum(terms.values())), info
+        solved = grasped and height >= self._lift_height
+        terms = {
+            "reward_reach": self._reward_reach_weight * (1.0 - float(np.tanh(10.0 * self._reach_distance()))),
+            "reward_grasp": self._reward_grasp_weight * n_cube / 8.0,
+            "reward_lift": self._reward_lift_weight * float(grasped) * min(max(height, 0.0) / self._lift_height, 1.0),
+            "reward_hold": self._reward_hold_weight * float(solved),
+            "reward_ctrl": ctrl,
+        }
+        # the floor and squeeze terms are added one after the other, in this order, to the sum of the others
+        squeeze = min(max(self.claw_torque(), 0.0) / self._squeeze_torque, 1.0) if self._reward_squeeze_weight else 0.0
+        extra = {
+            "reward_floor": -self._reward_floor_weight * contacts["claw_floor"],
+            "reward_squeeze": self._reward_squeeze_weight * float(grasped) * squeeze,
+        }
+        reward = float(sum(terms.values()))
+        for value in extra.values():
+            reward += value
+        info.update(terms)
+        info.update(extra)
+        return reward, info
+
+    def _is_terminal(self) -> bool:
+        if not self._terminate_on_success:
+            return False
+        # thesis mode: the episode ends with the lift bonus (height and more than 3 capsules on the cube)
+        return self._lift_bonus_paid if self._reward_mode == "thesis" else self._is_success()
+
+    # ------------------------------------------------------------------ observation and reset
+    def _joint_space_obs(self) -> NDArray[np.float64]:
+        ids = self._ids
+        qpos, qvel = self.data.qpos, self.data.qvel
+        angles = qpos[self._arm_qpos]
+        cube = self.cube_pos()
+        # the observation is computed first after every physics change (step and reset): read contacts once here
+        self._contacts = contacts = self._contact_summary(self.contact_pairs())
+        parts = [
+            np.cos(angles),
+            np.sin(angles),
+            [qpos[ids["claw_qpos"]]],
+            qvel[ids["arm_qvel"]],
+            [qvel[ids["claw_qvel"]]],
+            cube,
+            self.site_pos("palm") - cube,
+            self.site_pos("claw_right") - cube,
+            self.site_pos("claw_left") - cube,
+            [float(contacts["right"] > 0), float(contacts["left"] > 0)],
+        ]
+        if self._observe_claw_torque:
+            parts.append([self.claw_torque()])
+        return np.concatenate(parts)
+
+    def _get_obs(self) -> NDArray[np.float64]:
+        if self._observation == "joint":
+            observation = self._joint_space_obs()
+        else:
+            forearm = self.data.body("forearm").xmat.reshape(3, 3)  # columns: x along the forearm, z the hinge axis
+            velocity = self.grip_velocity()
+            kept = TASK_KEPT_JOINT_ROWS if self._observe_claw_torque else TASK_KEPT_JOINT_ROWS[:-1]
+            observation = np.concatenate([velocity, forearm[:, 0], forearm[:, 2], self._joint_space_obs()[kept]])
+        if self._cube_rotation is not None:
+            observation = np.concatenate([observation, self.cube_axes()])
+        return observation
+
+    def reset_model(self) -> NDArray[np.float64]:
+        self._lift_bonus_paid = False
+        ids = self._ids
+        noise = self._reset_noise_scale
+        qpos = self.init_qpos.copy()
+        qpos[self._arm_qpos] += self.np_random.uniform(-noise, noise, size=len(ARM_JOINTS))
+        claw = self.np_random.uniform(-noise, noise)
+        qpos[ids["claw_qpos"]] = claw
+        qpos[ids["claw_left_qpos"]] = -claw
+        radius = 0.1 * np.sqrt(self.np_random.uniform())
+        angle = self.np_random.uniform(-np.pi, np.pi)
+        cube = np.array([radius * np.cos(angle), radius * np.sin(angle), FLOOR_Z + CUBE_HALF_SIZE])
+        qpos[self._cube_qpos] = cube - ids["cube_body_pos"]
+        qvel = self.init_qvel + self.np_random.uniform(-0.005, 0.005, size=self.model.nv)
+        qvel[ids["cube_dofs"]] = 0.0
+        self.set_state(qpos, qvel)
+        self._claw_target = float(self.data.qpos[ids["claw_qpos"]])
+        return self._get_obs()
+
+
+def add_cube_rotation(spec: mujoco.MjSpec, cube_rotation: str = "yaw") -> None:
+    """Let the model's cube turn (``CUBE_ROTATIONS``): a joint after its three slide joints (the cube is the last
+    body, so every other coordinate keeps its index and the cube's orientation comes last in ``qpos``)."""
+    spec.body("cube").add_joint(
+        name=CUBE_ROTATION_JOINT, damping=CUBE_ROTATION_DAMPING, armature=0.0, **CUBE_ROTATIONS[cube_rotation]
+    )
+
+
+def _check_choice(name: str, value: Any, choices: tuple[Any, ...]) -> None:
+    if not any(value is choice or (isinstance(value, str) and value == choice) for choice in choices):
+        raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
+
+
+__all__ = ["Grasper3DEnv", "add_cube_rotation", "asset_path"]

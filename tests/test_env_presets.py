@@ -1,0 +1,118 @@
+"""Every registered id is a preset of one class per task, and reproduces its recorded trajectories exactly."""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import grasp_envs
+from grasp_envs.registration import PRESETS, RECOMMENDED_GRASPER
+from grasp_envs.wrappers import ScriptedStarts
+
+TRAJECTORIES = Path(__file__).resolve().parent / "data" / "trajectories"
+# recorded option sets beyond the presets: name -> (id, env kwargs, wrapper kwargs)
+OPTION_SETS: dict[str, tuple[str, dict[str, Any], dict[str, Any] | None]] = {
+    "Grasper3D-v6_ready": ("Grasper3D-v6", {"start_pose": "ready"}, None),
+    "Grasper3D-v0_thesis": ("Grasper3D-v0", {"reward_mode": "thesis"}, None),
+    # recorded when the scripted starts were options of the env (scripted_start_prob, _steps, _hold_height)
+    "Grasper3D-v6_ready_scripted_late": ("Grasper3D-v6", {"start_pose": "ready"}, {"probability": 0.5, "steps": (50, 100)}),
+    "Grasper3D-v4_scripted_hold": ("Grasper3D-v4", {}, {"probability": 0.6, "steps": (0, 100), "hold_height": 0.07}),
+}
+CASES = {env_id: (env_id, {}, None) for env_id in grasp_envs.ENV_IDS if (TRAJECTORIES / f"{env_id}.npz").exists()}
+CASES |= OPTION_SETS | {"Grasper3D-v7": ("Grasper3D-v7", {}, None)}
+
+
+def _replay(env_id: str, env_kwargs: dict[str, Any], wrapper_kwargs: dict[str, Any] | None, recorded: Any) -> None:
+    env = gym.make(env_id, **env_kwargs)
+    if wrapper_kwargs is not None:
+        env = ScriptedStarts(env, **wrapper_kwargs)
+    keys = [str(k) for k in recorded["info_keys"]]
+    first = True
+    for t, action in enumerate(recorded["actions"]):
+        if np.isnan(recorded["rewards"][t]):  # an episode's first row: reset
+            observation, info = env.reset(seed=int(recorded["seed"]) if first else None)
+            first = False
+            reward, terminated, truncated = np.nan, False, False
+        else:
+            observation, reward, terminated, truncated, info = env.step(action)
+        np.testing.assert_allclose(observation, recorded["observations"][t], rtol=0, atol=1e-9, err_msg=f"row {t}")
+        np.testing.assert_allclose(reward, recorded["rewards"][t], rtol=0, atol=1e-9, err_msg=f"row {t}")
+        assert (terminated, truncated) == (recorded["terminated"][t], recorded["truncated"][t]), f"row {t}"
+        values = np.array([float(info.get(k, np.nan)) for k in keys])
+        np.testing.assert_allclose(values, recorded["infos"][t], rtol=0, atol=1e-9, err_msg=f"row {t}: {keys}")
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_preset_replays_its_recorded_trajectory(name: str) -> None:
+    env_id, env_kwargs, wrapper_kwargs = CASES[name]
+    recording = "Grasper3D-v6_ready" if name == "Grasper3D-v7" else name  # v7 is v6 with the ready pose
+    _replay(env_id, env_kwargs, wrapper_kwargs, np.load(TRAJECTORIES / f"{recording}.npz"))
+
+
+def test_every_id_is_a_preset_of_one_class_per_task() -> None:
+    classes = {gym.spec(env_id).entry_point for env_id in grasp_envs.ENV_IDS}
+    assert classes == {preset.entry_point for preset in PRESETS.values()}
+    assert len(classes) == 4  # Reacher2D, Reacher3D, WallReacher3D, Grasper3D
+    for env_id, preset in PRESETS.items():
+        spec = gym.spec(env_id)
+        assert spec.kwargs == preset.kwargs and spec.max_episode_steps == preset.max_episode_steps
+        env_class = type(gym.make(env_id).unwrapped)
+        assert set(preset.kwargs) <= set(inspect.signature(env_class).parameters), env_id
+
+
+def test_no_env_class_inherits_another_version_of_its_task() -> None:
+    for env_class in (grasp_envs.Grasper3DEnv, grasp_envs.Reacher2DEnv, grasp_envs.Reacher3DEnv):
+        bases = [base.__module__ for base in env_class.__mro__[1:]]
+        assert not any(module.startswith("grasp_envs.") and module != "grasp_envs.base" for module in bases), env_class
+
+
+def test_recommended_grasper_is_the_class_defaults() -> None:
+    assert gym.make(RECOMMENDED_GRASPER).unwrapped.spec.kwargs == PRESETS[RECOMMENDED_GRASPER].kwargs
+    signature = inspect.signature(grasp_envs.Grasper3DEnv).parameters
+    for option, value in PRESETS[RECOMMENDED_GRASPER].kwargs.items():
+        assert signature[option].default == value, option
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"claw": "magnet"}, "claw must be one of"),
+        ({"control": "torque"}, "control must be one of"),
+        ({"observation": "pixels"}, "observation must be one of"),
+        ({"cube_rotation": "roll"}, "cube_rotation must be one of"),
+        ({"observe_claw_torque": "yes"}, "observe_claw_torque must be a bool"),
+        ({"claw": "torque", "control": "joint_torque"}, "need claw='servo'"),
+        ({"claw_rate": 0.1, "control": "joint_torque"}, "claw_rate"),
+    ],
+)
+def test_grasper_options_are_checked(kwargs: dict[str, Any], message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        grasp_envs.Grasper3DEnv(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"probability": 1.5}, "probability"),
+        ({"probability": True}, "probability"),
+        ({"steps": (5, 5)}, "steps"),
+        ({"steps": (0.5, 10)}, "steps"),
+        ({"hold_height": -0.1}, "hold_height"),
+    ],
+)
+def test_scripted_starts_arguments_are_checked(kwargs: dict[str, Any], message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        ScriptedStarts(gym.make("Grasper3D-v7"), **kwargs)
+    with pytest.raises(TypeError, match="Grasper3D"):
+        ScriptedStarts(gym.make("Reacher2D-v1"))
+
+
+def test_scripted_starts_off_changes_nothing() -> None:
+    plain, wrapped = gym.make("Grasper3D-v7"), ScriptedStarts(gym.make("Grasper3D-v7"), probability=0.0)
+    for seed in range(3):
+        np.testing.assert_array_equal(plain.reset(seed=seed)[0], wrapped.reset(seed=seed)[0])
