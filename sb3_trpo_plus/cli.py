@@ -88,12 +88,129 @@ def train(argv: Sequence[str]) -> None:
     zoo_train()
 
 
-def enjoy(argv: Sequence[str]) -> None:
-    """``trpo-plus enjoy --env ID [--algo ...] [rl_zoo3 enjoy flags]`` (headless without a display)."""
+def _enjoy_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="trpo-plus enjoy",
+        description="Run a trained agent. Reads the run as data only (weights-only load); --trust-pickle hands "
+        "the run to rl-zoo3's enjoy, which unpickles the model and statistics (for runs you trust).",
+    )
+    parser.add_argument("--algo", default="trpo_plus", choices=ALGO_CHOICES)
+    parser.add_argument("--env", required=True)
+    parser.add_argument("-f", "--folder", default=None, help="rl-zoo log folder (default: logs, else trained_agents)")
+    parser.add_argument("--exp-id", type=int, default=0, help="0: latest run")
+    parser.add_argument("-n", "--n-timesteps", type=int, default=1000)
+    parser.add_argument("--n-envs", type=int, default=1)
+    parser.add_argument("--no-render", action="store_true")
+    parser.add_argument("--deterministic", action="store_true", help="(the default)")
+    parser.add_argument("--stochastic", action="store_true")
+    parser.add_argument("--load-best", action="store_true")
+    parser.add_argument("--load-checkpoint", type=int, default=None, help="rl_model_<N>_steps.zip")
+    parser.add_argument("--load-last-checkpoint", action="store_true")
+    parser.add_argument("--norm-reward", action="store_true", help="show normalised rewards")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--num-threads", type=int, default=-1)
+    parser.add_argument("--verbose", type=int, default=1)
+    parser.add_argument("--env-kwargs", nargs="+", default=None, metavar="KEY:VALUE", help="VALUE a Python literal")
+    parser.add_argument("--gym-packages", nargs="+", default=[], help="modules to import (they register envs)")
+    parser.add_argument("--trust-pickle", action="store_true", help="unpickle the run with rl-zoo3's enjoy")
+    return parser
+
+
+def _literal_kwargs(pairs: Sequence[str] | None) -> dict[str, Any]:
+    """``KEY:VALUE`` command-line pairs, VALUE read as a Python literal (rl-zoo3 evaluates it)."""
+    import ast
+
+    result: dict[str, Any] = {}
+    for pair in pairs or ():
+        key, sep, text = pair.partition(":")
+        if not sep:
+            raise SystemExit(f"--env-kwargs: expected KEY:VALUE, got {pair!r}")
+        try:
+            result[key] = ast.literal_eval(text)
+        except (ValueError, SyntaxError):
+            result[key] = text  # a bare word: a string
+    return result
+
+
+def enjoy(argv: Sequence[str]) -> dict[str, Any]:
+    """``trpo-plus enjoy --env ID [--algo ...] [-f folder] [-n steps] [--no-render] [--trust-pickle] ...``.
+
+    Reads the run through the weights-only path (nothing unpickled or evaluated); ``--trust-pickle`` runs
+    rl-zoo3's enjoy instead. Renders nothing without a display. Prints every episode's return and length
+    and the success rate; returns them.
+    """
     _headless()
+    argv = list(argv)
+    if "--trust-pickle" in argv:
+        return _zoo_enjoy([a for a in argv if a != "--trust-pickle"])
+    args = _enjoy_parser().parse_args(argv)
+    import importlib
+
+    import torch as th
+
+    import grasp_envs  # noqa: F401
+
+    for package in args.gym_packages:
+        importlib.import_module(package)
+    if args.num_threads > 0:
+        th.set_num_threads(args.num_threads)
+    if not args.no_render and os.environ.get("MUJOCO_GL") == "egl" and not os.environ.get("DISPLAY"):
+        print("trpo-plus enjoy: no display, running with --no-render (trpo-plus record-video films the agent)")
+        args.no_render = True
+    folder = args.folder or _default_folder(args.algo, args.env)
+    print(f"trpo-plus enjoy: loading from {folder}")
+    checkpoint = None if args.load_checkpoint is None else str(args.load_checkpoint)
+    agent, env, _ = _load_trained(
+        args.algo, args.env, folder, args.exp_id, args.load_best, args.seed, render=False, n_envs=args.n_envs,
+        render_mode=None if args.no_render else "human", env_kwargs=_literal_kwargs(args.env_kwargs),
+        load_checkpoint=checkpoint, load_last_checkpoint=args.load_last_checkpoint, norm_reward=args.norm_reward,
+        device=args.device,
+    )  # fmt: skip
+    returns: list[float] = []
+    lengths: list[int] = []
+    successes: list[bool] = []
+    episode_return, episode_length = 0.0, 0
+    obs = env.reset()
+    try:
+        for _ in range(args.n_timesteps):
+            action, _ = agent.predict(obs, deterministic=not args.stochastic)
+            obs, reward, done, infos = env.step(action)
+            if not args.no_render:
+                env.render()
+            episode_return += float(reward[0])
+            episode_length += 1
+            if done[0]:
+                returns.append(episode_return)
+                lengths.append(episode_length)
+                if infos[0].get("is_success") is not None:
+                    successes.append(bool(infos[0]["is_success"]))
+                if args.verbose > 0:
+                    print(f"Episode Reward: {episode_return:.2f}")
+                    print("Episode Length", episode_length)
+                episode_return, episode_length = 0.0, 0
+    except KeyboardInterrupt:
+        pass
+    finally:
+        env.close()
+    summary: dict[str, Any] = {"episodes": len(returns), "returns": returns, "lengths": lengths}
+    if args.verbose > 0 and returns:
+        print(f"{len(returns)} Episodes")
+        print(f"Mean reward: {np.mean(returns):.2f} +/- {np.std(returns):.2f}")
+    if successes:
+        summary["success_rate"] = float(np.mean(successes))
+        if args.verbose > 0:
+            print(f"Success rate: {100 * summary['success_rate']:.2f}%")
+    return summary
+
+
+def _zoo_enjoy(argv: Sequence[str]) -> dict[str, Any]:
+    """rl-zoo3's enjoy (unpickles the model and statistics), after the run's YAML files were checked to be data."""
     parser = argparse.ArgumentParser(prog="trpo-plus enjoy", add_help=False)
     parser.add_argument("--algo", default="trpo_plus", choices=ALGO_CHOICES)
     parser.add_argument("--env", required=True)
+    parser.add_argument("-f", "--folder", default=None)
+    parser.add_argument("--exp-id", type=int, default=0)
     known, rest = parser.parse_known_args(argv)
     from rl_zoo3.enjoy import enjoy as zoo_enjoy
 
@@ -104,44 +221,75 @@ def enjoy(argv: Sequence[str]) -> None:
     if os.environ.get("MUJOCO_GL") == "egl" and not os.environ.get("DISPLAY") and "--no-render" not in rest:
         print("trpo-plus enjoy: no display, running with --no-render (trpo-plus record-video films the agent)")
         rest = [*rest, "--no-render"]
-    if "-f" not in rest and "--folder" not in rest:
-        folder = _default_folder(known.algo, known.env)
-        print(f"trpo-plus enjoy: loading from {folder}")
-        rest = [*rest, "-f", folder]
-    sys.argv = ["trpo-plus enjoy", "--algo", known.algo, "--env", known.env, *packages, *rest]
+    folder = known.folder or _default_folder(known.algo, known.env)
+    print(f"trpo-plus enjoy: loading from {folder} (--trust-pickle: rl-zoo3 unpickles the run)")
+    # rl-zoo3 reads config.yml / args.yml with yaml.UnsafeLoader and evaluates `normalize`: refuse code there first
+    _check_run_yaml(folder, known.algo, known.env, known.exp_id)
+    sys.argv = ["trpo-plus enjoy", "--algo", known.algo, "--env", known.env, "-f", folder, "--exp-id", str(known.exp_id)]
+    sys.argv += [*packages, *rest]
     zoo_enjoy()
+    return {}
 
 
-def _load_trained(algo: str, env_id: str, folder: str, exp_id: int, load_best: bool, seed: int, render: bool) -> tuple:
-    """Model and test env of an rl-zoo3 run (VecNormalize statistics and env kwargs restored)."""
-    import yaml
+def _check_run_yaml(folder: str, algo: str, env_id: str, exp_id: int) -> None:
     from huggingface_sb3 import EnvironmentName
-    from rl_zoo3.utils import ALGOS, create_test_env, get_model_path, get_saved_hyperparams
+    from rl_zoo3.utils import get_latest_run_id
 
-    from sb3_trpo_plus.zoo import register_in_rl_zoo
+    from sb3_trpo_plus.agents import validate_run_files
 
-    register_in_rl_zoo()
     env_name = EnvironmentName(env_id)
-    _, model_path, log_path = get_model_path(exp_id, folder, algo, env_name, load_best)
-    hyperparams, stats_path = get_saved_hyperparams(os.path.join(log_path, env_name), test_mode=True)
-    # as rl-zoo3's enjoy: the config's env_kwargs, replaced by those of the command line that trained it (args.yml)
-    env_kwargs: dict[str, Any] = dict(hyperparams.pop("env_kwargs", None) or {})
-    args_path = Path(log_path) / env_name / "args.yml"
-    if args_path.is_file():
-        trained_with = yaml.load(args_path.read_text(), Loader=yaml.UnsafeLoader).get("env_kwargs")
-        if trained_with is not None:
-            env_kwargs = dict(trained_with)
-    if render:
-        env_kwargs["render_mode"] = "rgb_array"
-    env = create_test_env(
-        env_id, n_envs=1, stats_path=stats_path, seed=seed, should_render=False, hyperparams=hyperparams, env_kwargs=env_kwargs
+    if exp_id == 0:
+        exp_id = get_latest_run_id(os.path.join(folder, algo), env_name)
+    run = Path(folder, algo, f"{env_name}_{exp_id}") if exp_id > 0 else Path(folder, algo)
+    if run.is_dir():
+        validate_run_files(run, env_id)
+
+
+def _load_trained(
+    algo: str,
+    env_id: str,
+    folder: str,
+    exp_id: int,
+    load_best: bool,
+    seed: int,
+    render: bool,
+    *,
+    trust_pickle: bool = False,
+    n_envs: int = 1,
+    render_mode: str | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    load_checkpoint: str | None = None,
+    load_last_checkpoint: bool = False,
+    norm_reward: bool = False,
+    device: str = "cpu",
+) -> tuple[Any, Any, str]:
+    """Agent and test env of an rl-zoo3 run (VecNormalize statistics and env kwargs restored), and the run folder.
+
+    The weights-only path by default (:mod:`sb3_trpo_plus.agents`: nothing in the run is unpickled or evaluated);
+    ``trust_pickle`` loads the full model with SB3. ``render`` makes the env render RGB frames.
+    """
+    from huggingface_sb3 import EnvironmentName
+    from rl_zoo3.utils import get_model_path
+
+    from sb3_trpo_plus.agents import load_eval_agent
+
+    env_name = EnvironmentName(env_id)
+    _, model_path, log_path = get_model_path(
+        exp_id, folder, algo, env_name, load_best, load_checkpoint=load_checkpoint, load_last_checkpoint=load_last_checkpoint
     )
-    model = ALGOS[algo].load(model_path, env=env, custom_objects={"learning_rate": 0.0, "lr_schedule": lambda _: 0.0})
-    return model, env, log_path
+    agent, env = load_eval_agent(
+        log_path, env_id, model_path=model_path, trust_pickle=trust_pickle, seed=seed, n_envs=n_envs,
+        render_mode="rgb_array" if render else render_mode, env_kwargs=env_kwargs, norm_reward=norm_reward,
+        device=device,
+    )  # fmt: skip
+    return agent, env, log_path
 
 
 def record_video(argv: Sequence[str]) -> list[Path]:
-    """``trpo-plus record-video --env ID [--algo] [-f logs] [--exp-id 0] [-n steps] [-o out.mp4] [--gif]``."""
+    """``trpo-plus record-video --env ID [--algo] [-f logs] [--exp-id 0] [-n steps] [-o out.mp4] [--gif] [--trust-pickle]``.
+
+    Loads the run through the weights-only path; ``--trust-pickle`` unpickles it with SB3 (trusted runs only).
+    """
     _headless()
     parser = argparse.ArgumentParser(prog="trpo-plus record-video")
     parser.add_argument("--env", required=True)
@@ -154,9 +302,12 @@ def record_video(argv: Sequence[str]) -> list[Path]:
     parser.add_argument("--load-best", action="store_true")
     parser.add_argument("--stochastic", action="store_true")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--trust-pickle", action="store_true", help="load with SB3 (unpickles the run: trusted runs only)")
     args = parser.parse_args(argv)
     args.folder = args.folder or _default_folder(args.algo, args.env)
-    model, env, log_path = _load_trained(args.algo, args.env, args.folder, args.exp_id, args.load_best, args.seed, True)
+    model, env, log_path = _load_trained(
+        args.algo, args.env, args.folder, args.exp_id, args.load_best, args.seed, True, trust_pickle=args.trust_pickle
+    )
     spec_steps = env.get_attr("spec")[0].max_episode_steps or 200
     steps = args.n_timesteps or 2 * spec_steps
     frames = []
