@@ -87,7 +87,9 @@ class Grasper3DEnv(ArmEnv):
 
     `control="joint_torque"`: `Box(-0.5, 0.5, (6,), float32)` with `claw="torque"`, the thesis' action: torques on
     `shoulder_y`, `shoulder_z`, `elbow_y`, `elbow_z`, `forearm_roll` (gear 200) and on the claw (gear 100; positive
-    closes); with `claw="servo"` the last entry is the claw command in [-1, 1].
+    closes); with `claw="servo"`,
+    `Box([-0.5 -0.5 -0.5 -0.5 -0.5 -1. ], [0.5 0.5 0.5 0.5 0.5 1. ], (6,), float32)`: the last entry is the claw
+    command $c$.
 
     The claw command $c$ with `claw="servo"` (default): a position servo on `claw_right` aims at the angle
     $0.4 c - 0.3$ rad (kp 10 N m/rad, force limited to 5 N m), so $c = 0$ holds the claw half open (34 mm between the

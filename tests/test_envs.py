@@ -15,6 +15,7 @@ from stable_baselines3.common.vec_env import SubprocVecEnv
 
 import grasp_envs
 from grasp_envs.scripted import SCRIPTED_POLICIES
+from grasp_envs.wrappers import ScriptedStarts
 
 ENV_IDS = grasp_envs.ENV_IDS
 
@@ -103,14 +104,39 @@ def test_instability_ends_episode_with_finite_observation(env_id: str) -> None:
     assert np.all(np.isfinite(obs)) and np.isfinite(reward)
 
 
+def _observation_rows(doc: str, env: gym.Env) -> list[int]:
+    """The observation table's row numbers that ``env`` observes: a table with a "When" column lists rows that depend
+    on an option (the Grasper: one table per ``observation`` layout, rows that ``observe_claw_torque`` and
+    ``cube_rotation`` add); the rows of an option that is off are left out and the later ones move up."""
+    section = doc.split("## Observation Space")[1].split("## Rewards")[0]
+    tables = re.split(r"\n\s*\n(?=\s*\|)", section)
+    tables = [t for t in tables if re.search(r"^\s*\|\s*Num", t, flags=re.MULTILINE)]
+    arm = env.unwrapped
+    table = tables[0] if len(tables) == 1 else tables[["task", "joint"].index(arm._observation)]
+    rows = re.findall(r"^\s*\|\s*(\d+)\s*\|[^\n]*?\|\s*([^|\n]*?)\s*\|\s*$", table, flags=re.MULTILINE)
+    numbers = [int(number) for number, _ in rows]
+    assert numbers == list(range(len(numbers)))
+    if "| When |" not in table:
+        return numbers
+    present = {
+        "always": True,
+        "`observe_claw_torque`": arm._observe_claw_torque,
+        "`cube_rotation`": arm._cube_rotation is not None,
+    }
+    kept = [present[when] for _, when in rows]
+    return list(range(sum(kept)))
+
+
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_docstring_tables_match_spaces(env_id: str) -> None:
     env = gym.make(env_id)
     doc = type(env.unwrapped).__doc__
     obs_section = doc.split("## Observation Space")[1].split("## Rewards")[0]
-    rows = [int(m) for m in re.findall(r"^\s*\|\s*(\d+)\s*\|", obs_section, flags=re.MULTILINE)]
-    assert rows == list(range(env.observation_space.shape[0]))
-    assert f"(-inf, inf, ({env.observation_space.shape[0]},), float64)" in obs_section
+    assert _observation_rows(doc, env) == list(range(env.observation_space.shape[0]))
+    dimension = env.observation_space.shape[0]
+    assert f"(-inf, inf, ({dimension},), float64)" in obs_section or "(-inf, inf, (N,), float64)" in obs_section
+    if "(N,)" in obs_section:
+        assert f"N = {dimension}" in obs_section or env.unwrapped._observation == "joint" or env_id != "Grasper3D-v7"
     low, high = env.action_space.low, env.action_space.high
     action_section = doc.split("## Action Space")[1].split("## Observation Space")[0]
     if np.all(low == low[0]) and np.all(high == high[0]):
@@ -122,6 +148,10 @@ def test_docstring_tables_match_spaces(env_id: str) -> None:
     rewards_section = doc.split("## Rewards")[1].split("## Starting State")[0]
     for term in (k for k in info if k.startswith("reward_")):
         assert f"`{term}`" in rewards_section, term
+    arguments = doc.split("## Arguments")[1].split("## Version History")[0]
+    for option in gym.spec(env_id).kwargs:
+        assert f"| `{option}` |" in arguments, option
+    assert f"* v{env_id.rsplit('-v', 1)[1]}:" in doc.split("## Version History")[1]
 
 
 def test_grasper_thesis_reward_terms_documented() -> None:
@@ -380,11 +410,11 @@ def test_grasper_v3_is_v2_plus_a_squeeze_term() -> None:
         gym.make("Grasper3D-v3", squeeze_torque=0.0)
 
 
-def test_grasper_v3_scripted_starts() -> None:
-    """scripted_start_prob p: a reset goes on with the scripted grasp for 0-99 steps with probability p (seeded);
-    p = 0 draws no random numbers, so its resets are v3's default ones."""
-    default, off = gym.make("Grasper3D-v3"), gym.make("Grasper3D-v3", scripted_start_prob=0.0)
-    always = gym.make("Grasper3D-v3", scripted_start_prob=1.0)
+def test_grasper_scripted_starts() -> None:
+    """ScriptedStarts(probability=p): a reset goes on with the scripted grasp for 0-99 steps with probability p (seeded);
+    p = 0 draws no random numbers, so its resets are the env's own."""
+    default, off = gym.make("Grasper3D-v3"), ScriptedStarts(gym.make("Grasper3D-v3"), probability=0.0)
+    always = ScriptedStarts(gym.make("Grasper3D-v3"), probability=1.0)
     started_grasped = 0
     for seed in range(16):
         np.testing.assert_array_equal(default.reset(seed=seed)[0], off.reset(seed=seed)[0])
@@ -393,19 +423,19 @@ def test_grasper_v3_scripted_starts() -> None:
         assert np.all(np.isfinite(first))
         started_grasped += always.unwrapped._is_grasped(always.unwrapped._contacts)
     assert started_grasped >= 2  # measured: 4 of 16 (the scripted grasp closes at steps 53-86)
-    with pytest.raises(ValueError, match="scripted_start_prob"):
-        gym.make("Grasper3D-v3", scripted_start_prob=1.5)
+    with pytest.raises(ValueError, match="probability"):
+        ScriptedStarts(gym.make("Grasper3D-v3"), probability=1.5)
 
 
 def test_grasper_scripted_start_steps_choose_the_phase() -> None:
-    """scripted_start_steps (low, high): the scripted grasp runs a uniform low..high-1 steps. The default (0, 100)
-    draws what v3 drew; (50, 100) starts grasped more than twice as often (measured on v4, 100 seeds: 0.62
+    """ScriptedStarts steps (low, high): the scripted grasp runs a uniform low..high-1 steps. The default is
+    (0, 100); (50, 100) starts grasped more than twice as often (measured on v4, 100 seeds: 0.62
     against 0.26), and a one-step range runs exactly that many steps."""
     from grasp_envs.scripted import grasper3d_policy
 
-    default = gym.make("Grasper3D-v4", scripted_start_prob=1.0)
-    explicit = gym.make("Grasper3D-v4", scripted_start_prob=1.0, scripted_start_steps=(0, 100))
-    late = gym.make("Grasper3D-v4", scripted_start_prob=1.0, scripted_start_steps=(50, 100))
+    default = ScriptedStarts(gym.make("Grasper3D-v4"), probability=1.0)
+    explicit = ScriptedStarts(gym.make("Grasper3D-v4"), probability=1.0, steps=(0, 100))
+    late = ScriptedStarts(gym.make("Grasper3D-v4"), probability=1.0, steps=(50, 100))
     grasped = {"default": 0, "late": 0}
     for seed in range(24):
         np.testing.assert_array_equal(default.reset(seed=seed)[0], explicit.reset(seed=seed)[0])
@@ -414,39 +444,40 @@ def test_grasper_scripted_start_steps_choose_the_phase() -> None:
         grasped["late"] += late.unwrapped._is_grasped(late.unwrapped._contacts)
     assert grasped["late"] >= 2 * grasped["default"] + 4, grasped
     # a one-step range is that many scripted steps: the same state as stepping the scripted grasp by hand
-    one = gym.make("Grasper3D-v4", scripted_start_prob=1.0, scripted_start_steps=(30, 31)).unwrapped
-    by_hand = gym.make("Grasper3D-v4", scripted_start_prob=1.0, scripted_start_steps=(0, 1)).unwrapped
+    one = ScriptedStarts(gym.make("Grasper3D-v4"), probability=1.0, steps=(30, 31))
+    by_hand = ScriptedStarts(gym.make("Grasper3D-v4"), probability=1.0, steps=(0, 1))
     observation, _ = one.reset(seed=7)
     by_hand.reset(seed=7)
+    arm = by_hand.unwrapped
     for _ in range(30):
-        by_hand.step(grasper3d_policy(by_hand))
-    np.testing.assert_allclose(observation, by_hand._get_obs())
+        arm.step(grasper3d_policy(arm))
+    np.testing.assert_allclose(observation, arm._get_obs())
     for bad in [(5, 5), (-1, 10), (10, 3), 100, (50,), (50.5, 100)]:
-        with pytest.raises(ValueError, match="scripted_start_steps"):
-            gym.make("Grasper3D-v4", scripted_start_steps=bad)
+        with pytest.raises(ValueError, match="steps"):
+            ScriptedStarts(gym.make("Grasper3D-v4"), steps=bad)
 
 
 def test_grasper_scripted_start_hold_height_keeps_the_cube() -> None:
-    """scripted_start_hold_height: the scripted grasp of a scripted start lifts the cube to that height and holds it
+    """ScriptedStarts hold_height: the scripted grasp of a scripted start lifts the cube to that height and holds it
     there. After 99 scripted steps on 20 seeded v5 resets (measured): held at 0.07 m, 17 start lifted and grasped,
     cube bottoms 0.064-0.071 m; without it, 9 (the cube keeps rising, to 0.18 m, and 3 of the 12 raised above
     5 cm have slipped out of the claw)."""
     lifted, heights = {}, {}
     for hold in (None, 0.07):
-        env = gym.make("Grasper3D-v5", scripted_start_prob=1.0, scripted_start_steps=(99, 100),
-                       scripted_start_hold_height=hold).unwrapped  # fmt: skip
+        env = ScriptedStarts(gym.make("Grasper3D-v5"), probability=1.0, steps=(99, 100), hold_height=hold)
+        arm = env.unwrapped
         lifted[hold], heights[hold] = 0, []
         for seed in range(20):
             env.reset(seed=seed)
-            lifted[hold] += env._is_success()
-            heights[hold].append(env.cube_height())
+            lifted[hold] += arm._is_success()
+            heights[hold].append(arm.cube_height())
     assert lifted[0.07] >= 15 and lifted[0.07] >= lifted[None] + 5, lifted
     raised = [h for h in heights[0.07] if h > 0.03]
     assert len(raised) >= 15 and max(raised) < 0.075 and min(raised) > 0.06, raised
     assert max(heights[None]) > 0.12, heights[None]
     for bad in (0.0, -0.05):
-        with pytest.raises(ValueError, match="scripted_start_hold_height"):
-            gym.make("Grasper3D-v5", scripted_start_hold_height=bad)
+        with pytest.raises(ValueError, match="hold_height"):
+            ScriptedStarts(gym.make("Grasper3D-v5"), hold_height=bad)
 
 
 def test_grasper_v4_grip_priority_moves_the_grip_as_commanded() -> None:
@@ -522,7 +553,7 @@ def test_grasper_v5_is_v4_observed_in_task_space() -> None:
     """v5 = v4's dynamics, reward and success; its observation keeps v4's non-joint rows and replaces the joint
     angles and velocities with the grip's velocity and the forearm's and claw hinge's directions."""
     from grasp_envs import scripted
-    from grasp_envs.grasper3d_v5 import KEPT_V4_ROWS
+    from grasp_envs.grasper3d import TASK_KEPT_JOINT_ROWS as KEPT_V4_ROWS
 
     v4, v5 = gym.make("Grasper3D-v4"), gym.make("Grasper3D-v5")
     obs4, _ = v4.reset(seed=3)
@@ -584,7 +615,7 @@ def test_grasper_v6_cube_turns_with_the_claw() -> None:
         np.testing.assert_allclose(obs[26:], np.r_[rotation[:, 0], rotation[:, 2]])
         np.testing.assert_allclose(obs[29:], [0.0, 0.0, 1.0], atol=1e-12)  # upright
         assert obs[26] < np.cos(np.radians(30.0))  # it turned about the vertical by more than 30 degrees
-    with pytest.raises(ValueError, match="cube_rotation must be one of \\['free', 'yaw'\\], got 'roll'"):
+    with pytest.raises(ValueError, match="cube_rotation must be one of \\[None, 'yaw', 'free'\\], got 'roll'"):
         gym.make("Grasper3D-v6", cube_rotation="roll")
 
 
@@ -618,14 +649,5 @@ def test_grasper_v6_ready_start_pose() -> None:
             lifted[pose] += bool(info["is_success"])
     assert max(first_touch["ready"]) <= 60 < max(first_touch["stretched"]), first_touch
     assert lifted["ready"] >= 19, lifted
-    with pytest.raises(ValueError, match="start_pose must be one of \\['ready', 'stretched'\\], got 'up'"):
+    with pytest.raises(ValueError, match="start_pose must be one of \\['stretched', 'ready'\\], got 'up'"):
         gym.make("Grasper3D-v6", start_pose="up")
-
-
-def test_derived_docstring_refuses_a_lost_anchor() -> None:
-    """A later version's docstring is the earlier one edited in place; an edit whose text is gone raises."""
-    from grasp_envs.base import derived_docstring
-
-    assert derived_docstring("A b a\n", "X-v0", {"a": "c"}, "\n    * v1") == "A b c\n    * v1"
-    with pytest.raises(ValueError, match="X-v0's docstring lost 'z'"):
-        derived_docstring("A b a", "X-v0", {"z": "c"}, "")
