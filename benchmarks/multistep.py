@@ -23,8 +23,8 @@ import torch as th
 from stable_baselines3.common.distributions import Distribution
 
 from sb3_trpo_plus import TRPOPlus
-from sb3_trpo_plus.natural_gradient import LineSearchResult, detached_distribution
-from sb3_trpo_plus.trpo_plus import PolicyBatch
+from sb3_trpo_plus.natural_gradient import detached_distribution
+from sb3_trpo_plus.trpo_plus import PolicyBatch, PolicyStep
 
 
 class MultiStepTRPOPlus(TRPOPlus):
@@ -36,36 +36,36 @@ class MultiStepTRPOPlus(TRPOPlus):
         self.n_policy_steps = n_policy_steps
         super().__init__(*args, **kwargs)
 
-    def _update_policy(self, batch: PolicyBatch) -> LineSearchResult:
+    def _update_policy(self, batch: PolicyBatch) -> PolicyStep:
         actions = self._action_tensor(batch.actions)
         distribution: Distribution = self.policy.get_distribution(batch.observations)
         anchor = detached_distribution(distribution)  # the rollout's policy: the trust region's centre
-        advantages, ess = self._step_advantages(batch, distribution.log_prob(actions).detach())
+        surrogate = self._step_advantages(batch, distribution.log_prob(actions).detach())
         step_kl = self.current_target_kl / self.n_policy_steps
-        results: list[LineSearchResult] = []
+        steps: list[PolicyStep] = []
         moved: np.ndarray | None = None
-        for step in range(self.n_policy_steps):
-            if step > 0:
+        for index in range(self.n_policy_steps):
+            if index > 0:
                 distribution = self.policy.get_distribution(batch.observations)
-            warm_start = self._warm_start if step == 0 else _no_start
-            result = self._natural_gradient_step(batch, distribution, actions, advantages, anchor, step_kl, warm_start, ess)
-            results.append(result)
-            if not result.accepted:
+            warm_start = self._warm_start if index == 0 else _no_start
+            step = self._natural_gradient_step(batch, distribution, actions, surrogate, anchor, step_kl, warm_start)
+            steps.append(step)
+            if step.applied_step is None:
                 break
-            assert self.previous_step is not None  # the step just taken
-            moved = self.previous_step if moved is None else moved + self.previous_step
-        accepted = [r for r in results if r.accepted]
-        # the warm start of the next update: the whole update's step, as TRPOPlus keeps its one step
-        self.previous_step = moved
+            moved = step.applied_step if moved is None else moved + step.applied_step
+        accepted = [s for s in steps if s.line_search.accepted]
         self.logger.record("train/policy_steps", len(accepted))
-        last = accepted[-1] if accepted else results[-1]
-        return replace(
-            last,
+        last = accepted[-1] if accepted else steps[-1]
+        line_search = replace(
+            last.line_search,
             accepted=bool(accepted),
-            steps=sum(r.steps for r in results),
-            nonfinite=any(r.nonfinite for r in results),
-            coefficient=float(np.mean([r.coefficient for r in results])),
+            steps=sum(s.line_search.steps for s in steps),
+            nonfinite=any(s.line_search.nonfinite for s in steps),
+            coefficient=float(np.mean([s.line_search.coefficient for s in steps])),
         )
+        # the CG statistics of the last step taken; the warm start of the next update: the whole update's step, as
+        # TRPOPlus keeps its one step
+        return replace(steps[-1], line_search=line_search, applied_step=moved)
 
 
 def _no_start(gradient: th.Tensor) -> None:

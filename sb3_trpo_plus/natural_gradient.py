@@ -276,7 +276,7 @@ def backtracking_line_search(
     """
     original = flat_parameters(params)
     if not bool(th.isfinite(full_step).all()):
-        return LineSearchResult(False, 0, 0.0, baseline_objective, 0.0, True)
+        return LineSearchResult(accepted=False, steps=0, coefficient=0.0, objective=baseline_objective, kl=0.0, nonfinite=True)
     coefficient = 1.0
     nonfinite = False
     with th.no_grad():
@@ -286,7 +286,11 @@ def backtracking_line_search(
             if not (math.isfinite(objective) and math.isfinite(kl)):
                 nonfinite = True
             elif kl <= target_kl and objective > baseline_objective:
-                return LineSearchResult(True, step, coefficient, objective, kl, nonfinite)
+                return LineSearchResult(
+                    accepted=True, steps=step, coefficient=coefficient, objective=objective, kl=kl, nonfinite=nonfinite
+                )
             coefficient *= shrinking_factor
         set_flat_parameters(params, original)
-    return LineSearchResult(False, max_iter, 0.0, baseline_objective, 0.0, nonfinite)
+    return LineSearchResult(
+        accepted=False, steps=max_iter, coefficient=0.0, objective=baseline_objective, kl=0.0, nonfinite=nonfinite
+    )

@@ -43,6 +43,25 @@ class StoredRollout:
         return int(self.rewards.size)
 
 
+@dataclass(frozen=True)
+class RolloutEvaluation:
+    """A stored rollout re-evaluated with the current value function and statistics (:func:`recompute_advantages`).
+
+    :param rollout: the stored rollout
+    :param observations: its observations, normalised and flattened to ``(n_steps * n_envs, *obs_shape)`` in
+        ``[step, env]`` order
+    :param values: current value estimates, shaped ``[step, env]``
+    :param advantages: GAE advantages, shaped ``[step, env]``
+    :param returns: ``advantages + values``, shaped ``[step, env]``
+    """
+
+    rollout: StoredRollout
+    observations: np.ndarray
+    values: np.ndarray
+    advantages: np.ndarray
+    returns: np.ndarray
+
+
 class RolloutRecorder:
     """Accumulates one :class:`StoredRollout` step by step during ``collect_rollouts``.
 
@@ -168,15 +187,14 @@ def recompute_advantages(
     gae_lambda: float,
     normalize_obs: Callable[[np.ndarray], np.ndarray] | None = None,
     normalize_reward: Callable[[np.ndarray], np.ndarray] | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> RolloutEvaluation:
     """Re-evaluate a stored rollout with the current value function and statistics.
 
     :param rollout: the stored rollout
     :param value_fn: current value function on flat (normalised) observations and episode timesteps
     :param normalize_obs: current observation normalisation (``VecNormalize.normalize_obs``), if any
     :param normalize_reward: current reward normalisation (``VecNormalize.normalize_reward``), if any
-    :return: ``(observations, values, advantages, returns)``; observations normalised and flattened
-        to ``(n_steps * n_envs, *obs_shape)`` in ``[step, env]`` order, the others shaped ``[step, env]``
+    :return: the rollout's normalised observations, values, advantages and returns
     """
     n_steps, n_envs = rollout.rewards.shape
     identity = _identity
@@ -201,7 +219,7 @@ def recompute_advantages(
     advantages, returns = compute_gae(
         rewards, values, rollout.episode_starts, last_values, rollout.last_dones, gamma, gae_lambda
     )
-    return flat_obs, values, advantages, returns
+    return RolloutEvaluation(rollout=rollout, observations=flat_obs, values=values, advantages=advantages, returns=returns)
 
 
 def _identity(x: np.ndarray) -> np.ndarray:

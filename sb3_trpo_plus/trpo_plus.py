@@ -10,9 +10,9 @@ import random
 import tempfile
 import time
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, NamedTuple, TypeVar
 
 import numpy as np
 import torch as th
@@ -23,7 +23,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.distributions import Distribution, kl_divergence
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
-from stable_baselines3.common.utils import explained_variance, obs_as_tensor
+from stable_baselines3.common.utils import FloatSchedule, explained_variance
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 from torch.nn import functional as F
@@ -38,6 +38,7 @@ from sb3_trpo_plus.natural_gradient import (
     flat_gradient,
 )
 from sb3_trpo_plus.replay import (
+    RolloutEvaluation,
     RolloutRecorder,
     StoredRollout,
     effective_sample_size,
@@ -72,75 +73,146 @@ def actor_parameters(policy: ActorCriticPolicy) -> list[nn.Parameter]:
     return list(unique.values())
 
 
-def validate_hyperparameters(
-    *,
-    learning_rate: float | Schedule,
-    n_steps: int,
-    batch_size: int,
-    gamma: float,
-    gae_lambda: float,
-    cg_max_steps: int,
-    cg_damping: float,
-    line_search_shrinking_factor: float,
-    line_search_max_iter: int,
-    n_critic_updates: int,
-    target_kl: float | Schedule,
-    sub_sampling_factor: int,
-    fisher_sub_sampling: int,
-    replay_memory: int,
-    replay_is_clip: float | None,
-    value_baseline: str,
-    linear_baseline_l2: float,
-) -> None:
-    """Raise ``ValueError`` naming the first invalid hyperparameter."""
+# ---------------------------------------------------------------------- hyperparameter validation
+class Rule(NamedTuple):
+    """What one constructor argument accepts, and that requirement in words (as the error message states it)."""
 
-    def is_int(value: Any) -> bool:
-        return isinstance(value, int | np.integer) and not isinstance(value, bool)
-
-    def is_real(value: Any) -> bool:
-        return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
-
-    def need(condition: bool, name: str, value: Any, rule: str) -> None:
-        if not condition:
-            raise ValueError(f"TRPOPlus hyperparameter `{name}` must be {rule}, got {value!r}")
-
-    if not callable(learning_rate):
-        need(is_real(learning_rate) and learning_rate > 0, "learning_rate", learning_rate, "a positive number or a schedule")
-    for name, value in (
-        ("n_steps", n_steps),
-        ("batch_size", batch_size),
-        ("cg_max_steps", cg_max_steps),
-        ("line_search_max_iter", line_search_max_iter),
-        ("sub_sampling_factor", sub_sampling_factor),
-        ("fisher_sub_sampling", fisher_sub_sampling),
-    ):
-        need(is_int(value) and value >= 1, name, value, "an integer >= 1")
-    need(is_int(n_critic_updates) and n_critic_updates >= 0, "n_critic_updates", n_critic_updates, "an integer >= 0")
-    need(is_int(replay_memory) and replay_memory >= 0, "replay_memory", replay_memory, "an integer >= 0 (k past rollouts)")
-    need(is_real(gamma) and 0.0 <= gamma <= 1.0, "gamma", gamma, "in [0, 1]")
-    need(is_real(gae_lambda) and 0.0 <= gae_lambda <= 1.0, "gae_lambda", gae_lambda, "in [0, 1]")
-    need(
-        is_real(cg_damping) and math.isfinite(cg_damping) and cg_damping >= 0, "cg_damping", cg_damping, "a finite number >= 0"
-    )
-    if not callable(target_kl):
-        need(
-            is_real(target_kl) and math.isfinite(target_kl) and target_kl > 0,
-            "target_kl",
-            target_kl,
-            "a finite number > 0 or a schedule",
-        )
-    need(
-        is_real(line_search_shrinking_factor) and 0.0 < line_search_shrinking_factor < 1.0,
-        "line_search_shrinking_factor",
-        line_search_shrinking_factor,
-        "in the open interval (0, 1)",
-    )
-    if replay_is_clip is not None:
-        need(is_real(replay_is_clip) and replay_is_clip > 0, "replay_is_clip", replay_is_clip, "None or a number > 0")
-    need(value_baseline in VALUE_BASELINES, "value_baseline", value_baseline, f"one of {VALUE_BASELINES}")
-    need(is_real(linear_baseline_l2) and linear_baseline_l2 >= 0, "linear_baseline_l2", linear_baseline_l2, "a number >= 0")
+    accepts: Callable[[Any], bool]
+    requirement: str
 
 
+def _is_bool(value: Any) -> bool:
+    return isinstance(value, bool)
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def _is_finite_number(value: Any) -> bool:
+    if not isinstance(value, int | float | np.integer | np.floating) or isinstance(value, bool):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an int beyond float's range
+        return False
+
+
+def _is_schedule(value: Any) -> bool:
+    """A function of the remaining progress (a class is callable too, but is no schedule)."""
+    return callable(value) and not isinstance(value, type)
+
+
+def _boolean() -> Rule:
+    return Rule(_is_bool, "a bool (True or False)")
+
+
+def _integer(minimum: int) -> Rule:
+    return Rule(lambda value: _is_int(value) and value >= minimum, f"an integer >= {minimum}")
+
+
+def _number(condition: Callable[[float], bool], text: str, *, schedule: bool = False, optional: bool = False) -> Rule:
+    """A finite int or float satisfying ``condition`` (``text`` in words); or a schedule, or None, where allowed."""
+
+    def accepts(value: Any) -> bool:
+        if (optional and value is None) or (schedule and _is_schedule(value)):
+            return True
+        return _is_finite_number(value) and condition(float(value))
+
+    return Rule(accepts, ("None or " if optional else "") + f"a finite number {text}" + (" or a schedule" if schedule else ""))
+
+
+def _optional(kind: type, text: str) -> Rule:
+    return Rule(lambda value: value is None or isinstance(value, kind), f"None or {text}")
+
+
+def _is_environment(value: Any) -> bool:
+    if value is None or isinstance(value, str | VecEnv):  # None: SB3's `load` builds the model before the env is set
+        return True
+    return all(hasattr(value, name) for name in ("reset", "step", "observation_space", "action_space"))
+
+
+def _is_device(value: Any) -> bool:
+    if isinstance(value, th.device) or value == "auto":
+        return True
+    if not isinstance(value, str):
+        return False
+    try:
+        th.device(value)
+    except RuntimeError:
+        return False
+    return True
+
+
+HYPERPARAMETER_RULES: dict[str, Rule] = {
+    "policy": Rule(
+        lambda value: (
+            (isinstance(value, str) and value in TRPO.policy_aliases)
+            or (isinstance(value, type) and issubclass(value, ActorCriticPolicy))
+        ),
+        f"one of {sorted(TRPO.policy_aliases)} or an ActorCriticPolicy subclass",
+    ),
+    "env": Rule(_is_environment, "an environment id (str), a Gymnasium environment or a VecEnv"),
+    "learning_rate": _number(lambda x: x > 0, "> 0", schedule=True),
+    "n_steps": _integer(1),
+    "batch_size": _integer(1),
+    "gamma": _number(lambda x: 0.0 <= x <= 1.0, "in [0, 1]"),
+    "cg_max_steps": _integer(1),
+    "cg_damping": _number(lambda x: x >= 0, ">= 0"),
+    "line_search_shrinking_factor": _number(lambda x: 0.0 < x < 1.0, "in the open interval (0, 1)"),
+    "line_search_max_iter": _integer(1),
+    "n_critic_updates": _integer(0),
+    "gae_lambda": _number(lambda x: 0.0 <= x <= 1.0, "in [0, 1]"),
+    "use_sde": _boolean(),
+    "sde_sample_freq": _integer(-1),
+    "rollout_buffer_class": Rule(
+        lambda value: value is None or (isinstance(value, type) and issubclass(value, RolloutBuffer)),
+        "None or a RolloutBuffer subclass",
+    ),
+    "rollout_buffer_kwargs": _optional(dict, "a dict"),
+    "normalize_advantage": _boolean(),
+    "target_kl": _number(lambda x: x > 0, "> 0", schedule=True),
+    "sub_sampling_factor": _integer(1),
+    "fisher_sub_sampling": _integer(1),
+    "replay_memory": _integer(0),
+    "replay_is_clip": _number(lambda x: x > 0, "> 0", optional=True),
+    "replay_critic": _boolean(),
+    "cg_warm_start": _boolean(),
+    "cg_warm_start_rescale": _boolean(),
+    "value_baseline": Rule(lambda value: isinstance(value, str) and value in VALUE_BASELINES, f"one of {VALUE_BASELINES}"),
+    "linear_baseline_l2": _number(lambda x: x >= 0, ">= 0"),
+    "stats_window_size": _integer(1),
+    "tensorboard_log": _optional(str | os.PathLike, "a folder path"),  # type: ignore[arg-type]
+    "policy_kwargs": _optional(dict, "a dict"),
+    "verbose": _integer(0),
+    "seed": Rule(lambda value: value is None or (_is_int(value) and value >= 0), "None or an integer >= 0"),
+    "device": Rule(_is_device, "a torch.device or a device name ('auto', 'cpu', 'cuda', ...)"),
+    "_init_setup_model": _boolean(),
+}
+"""Every constructor argument of :class:`TRPOPlus` and what it accepts.
+
+Booleans are ``bool`` only; integers are ``int`` (or numpy integers), never ``bool`` or ``float``; numbers are
+finite ``int`` or ``float`` (or numpy numbers), never ``bool`` or ``str``, or a schedule where SB3 takes one;
+``None`` only where the default is ``None`` (and ``env``, which SB3's ``load`` sets after construction).
+"""
+
+
+def validate_hyperparameters(**hyperparameters: Any) -> None:
+    """Raise ``ValueError`` naming the first hyperparameter that breaks its rule in ``HYPERPARAMETER_RULES``."""
+    for name, value in hyperparameters.items():
+        rule = HYPERPARAMETER_RULES.get(name)
+        if rule is None:
+            raise TypeError(f"TRPOPlus has no hyperparameter `{name}`")
+        if not rule.accepts(value):
+            raise ValueError(f"TRPOPlus hyperparameter `{name}` must be {rule.requirement}, got {value!r}")
+
+
+def _float_or_schedule(value: float | Schedule) -> float | Schedule:
+    """A validated number as a Python float (SB3's ``FloatSchedule`` takes int and float only), a schedule as is."""
+    return value if callable(value) else float(value)
+
+
+# ---------------------------------------------------------------------- records of one update
 @dataclass(frozen=True)
 class PolicyBatch:
     """Samples of one policy update: the current rollout (``n_current`` samples) followed by the replayed ones."""
@@ -156,6 +228,89 @@ class PolicyBatch:
         return len(self.advantages) - self.n_current
 
 
+@dataclass(frozen=True)
+class SurrogateAdvantages:
+    """The batch's advantages as the surrogate weighs them (normalised, replayed ones truncated).
+
+    :param advantages: one per sample of the batch
+    :param replay_ess: effective sample size of the importance weights, a fraction of the batch (1: on-policy)
+    """
+
+    advantages: th.Tensor
+    replay_ess: float
+
+
+@dataclass(frozen=True)
+class PolicyStep:
+    """One natural-gradient step: its line search, the parameter change it made, and its CG diagnostics.
+
+    :param line_search: outcome of the line search
+    :param applied_step: the change of the actor parameters (flat), None when the line search rejected the step;
+        the next update's CG warm start
+    :param objective_before: surrogate objective before the step
+    :param cg_iterations: CG iterations
+    :param cg_residual: CG's final residual norm
+    :param cg_relative_residual: the residual norm over the gradient's
+    :param step_gradient_cosine: cosine between the CG solution and the gradient
+    :param fisher_vector_products: Fisher-vector products, the warm start's and the step scaling's included
+    :param cg_warm_start_cosine: cosine between CG's start and its solution (0 without a warm start)
+    :param replay_ess: the replayed samples' effective sample size (:class:`SurrogateAdvantages`)
+    """
+
+    line_search: LineSearchResult
+    applied_step: np.ndarray | None
+    objective_before: float
+    cg_iterations: int
+    cg_residual: float
+    cg_relative_residual: float
+    step_gradient_cosine: float
+    fisher_vector_products: int
+    cg_warm_start_cosine: float
+    replay_ess: float
+
+
+@dataclass(frozen=True)
+class ValueFit:
+    """Outcome of the value-baseline fit of one update.
+
+    :param loss: mean squared error to the returns (mean over the critic's minibatches; NaN if none was finite)
+    :param skipped_steps: critic steps skipped for a non-finite loss
+    """
+
+    loss: float
+    skipped_steps: int
+
+
+class _AfterEachStep(BaseCallback):
+    """Runs ``callback`` as SB3 would, then ``after_step(locals)`` for each step that ``callback`` lets count.
+
+    SB3's ``collect_rollouts`` passes its local variables (``new_obs``, ``rewards``, ``dones``, ``infos``,
+    ``actions``, ``log_probs``) to its callback right after ``env.step``, before it bootstraps time-limit
+    truncations into the rewards and updates ``_last_obs``.
+    """
+
+    def __init__(self, model: TRPOPlus, callback: BaseCallback, after_step: Callable[[dict[str, Any]], None]):
+        super().__init__()
+        self.callback = callback
+        self.after_step = after_step
+        self.init_callback(model)
+
+    def update_child_locals(self, locals_: dict[str, Any]) -> None:
+        self.callback.update_locals(locals_)
+
+    def _on_rollout_start(self) -> None:
+        self.callback.on_rollout_start()
+
+    def _on_step(self) -> bool:
+        if not self.callback.on_step():
+            return False
+        self.after_step(self.locals)
+        return True
+
+    def _on_rollout_end(self) -> None:
+        self.callback.on_rollout_end()
+
+
 class TRPOPlus(TRPO):
     """
     Trust Region Policy Optimization with replay memory and warm-started conjugate gradient.
@@ -165,6 +320,8 @@ class TRPOPlus(TRPO):
     a replay memory of the last ``k`` rollouts (5.3.1) and CG warm-started with the previous
     update step (5.3.2, after Martens 2010). With ``replay_memory=0``, ``cg_warm_start=False`` and
     ``value_baseline="critic"`` one update is sb3-contrib's TRPO update. See ``docs/algorithm.md``.
+    Every argument is checked at construction (``HYPERPARAMETER_RULES``): a value of the wrong type or
+    out of range raises ``ValueError`` naming the argument and the value.
 
     :param policy: The policy model to use (MlpPolicy, CnnPolicy, ...)
     :param env: The environment to learn from (if registered in Gymnasium, can be str;
@@ -254,12 +411,18 @@ class TRPOPlus(TRPO):
         _init_setup_model: bool = True,
     ):
         validate_hyperparameters(
-            learning_rate=learning_rate, n_steps=n_steps, batch_size=batch_size, gamma=gamma,
-            gae_lambda=gae_lambda, cg_max_steps=cg_max_steps, cg_damping=cg_damping,
+            policy=policy, env=env, learning_rate=learning_rate, n_steps=n_steps, batch_size=batch_size,
+            gamma=gamma, cg_max_steps=cg_max_steps, cg_damping=cg_damping,
             line_search_shrinking_factor=line_search_shrinking_factor, line_search_max_iter=line_search_max_iter,
-            n_critic_updates=n_critic_updates, target_kl=target_kl, sub_sampling_factor=sub_sampling_factor,
-            fisher_sub_sampling=fisher_sub_sampling, replay_memory=replay_memory, replay_is_clip=replay_is_clip,
-            value_baseline=value_baseline, linear_baseline_l2=linear_baseline_l2,
+            n_critic_updates=n_critic_updates, gae_lambda=gae_lambda, use_sde=use_sde,
+            sde_sample_freq=sde_sample_freq, rollout_buffer_class=rollout_buffer_class,
+            rollout_buffer_kwargs=rollout_buffer_kwargs, normalize_advantage=normalize_advantage,
+            target_kl=target_kl, sub_sampling_factor=sub_sampling_factor, fisher_sub_sampling=fisher_sub_sampling,
+            replay_memory=replay_memory, replay_is_clip=replay_is_clip, replay_critic=replay_critic,
+            cg_warm_start=cg_warm_start, cg_warm_start_rescale=cg_warm_start_rescale, value_baseline=value_baseline,
+            linear_baseline_l2=linear_baseline_l2, stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose, seed=seed, device=device,
+            _init_setup_model=_init_setup_model,
         )  # fmt: skip
         if isinstance(env, str):
             import grasp_envs  # noqa: F401  (registers our ids so that a bare id string works)
@@ -268,23 +431,23 @@ class TRPOPlus(TRPO):
             if n_steps * n_envs <= 1:
                 raise ValueError(f"TRPOPlus needs `n_steps * n_envs` > 1 to normalise advantages, got {n_steps} * {n_envs}")
         super().__init__(
-            policy, env, learning_rate=learning_rate, n_steps=n_steps, batch_size=batch_size, gamma=gamma,
-            cg_max_steps=cg_max_steps, cg_damping=cg_damping,
+            policy, env, learning_rate=_float_or_schedule(learning_rate), n_steps=n_steps, batch_size=batch_size,
+            gamma=gamma, cg_max_steps=cg_max_steps, cg_damping=cg_damping,
             line_search_shrinking_factor=line_search_shrinking_factor, line_search_max_iter=line_search_max_iter,
             n_critic_updates=n_critic_updates, gae_lambda=gae_lambda, use_sde=use_sde,
             sde_sample_freq=sde_sample_freq, rollout_buffer_class=rollout_buffer_class,
             rollout_buffer_kwargs=rollout_buffer_kwargs, normalize_advantage=normalize_advantage,
-            target_kl=target_kl,  # type: ignore[arg-type]  # a schedule too (sb3-contrib's TRPO only stores it)
+            target_kl=_float_or_schedule(target_kl),  # type: ignore[arg-type]  # a schedule too (sb3-contrib's TRPO only stores it)
             sub_sampling_factor=sub_sampling_factor, stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose, seed=seed,
             device=device, _init_setup_model=False,
         )  # fmt: skip
         self.fisher_sub_sampling = int(fisher_sub_sampling)
         self.replay_memory = int(replay_memory)
-        self.replay_is_clip = replay_is_clip
-        self.replay_critic = bool(replay_critic)
-        self.cg_warm_start = bool(cg_warm_start)
-        self.cg_warm_start_rescale = bool(cg_warm_start_rescale)
+        self.replay_is_clip = None if replay_is_clip is None else float(replay_is_clip)
+        self.replay_critic = replay_critic
+        self.cg_warm_start = cg_warm_start
+        self.cg_warm_start_rescale = cg_warm_start_rescale
         self.value_baseline = value_baseline
         self.linear_baseline_l2 = float(linear_baseline_l2)
         array_spaces = spaces.Box | spaces.Discrete | spaces.MultiDiscrete | spaces.MultiBinary
@@ -316,17 +479,15 @@ class TRPOPlus(TRPO):
         self.rollout_memory = deque(memory or [], maxlen=max(self.replay_memory, 1))
         if self.value_baseline == "linear" and getattr(self, "linear_baseline", None) is None:
             self.linear_baseline = LinearFeatureBaseline(l2_reg=self.linear_baseline_l2)
-        self._recorder: RolloutRecorder | None = None
+        # the raw record of the last rollout, for the linear baseline and then the replay memory
         self._current_rollout: StoredRollout | None = None
-        # (rollout, observations, values, advantages, returns) of the stored rollouts, for the running update
-        self._replayed: list[tuple[StoredRollout, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
 
-    def _make_recorder(self) -> RolloutRecorder:
+    def _make_recorder(self, n_envs: int) -> RolloutRecorder:
         obs_space = self.observation_space
         obs_shape = obs_space.shape if obs_space.shape else (1,)
         assert obs_space.dtype is not None
         action_dim = int(np.prod(self.action_space.shape)) if self.action_space.shape else 1
-        return RolloutRecorder(self.n_steps, self.n_envs, tuple(obs_shape), np.dtype(obs_space.dtype), action_dim)
+        return RolloutRecorder(self.n_steps, n_envs, tuple(obs_shape), np.dtype(obs_space.dtype), action_dim)
 
     def _setup_learn(
         self,
@@ -352,103 +513,52 @@ class TRPOPlus(TRPO):
         rollout_buffer: RolloutBuffer,
         n_rollout_steps: int,
     ) -> bool:
-        """SB3's rollout collection, plus a raw record of the rollout for the replay memory / linear baseline."""
-        assert self._last_obs is not None, "No previous observation was provided"
-        self.policy.set_training_mode(False)
-        n_steps = 0
-        rollout_buffer.reset()
+        """SB3's rollout collection; each step is also recorded raw for the replay memory / linear baseline."""
+        recorder = self._make_recorder(env.num_envs) if self._needs_rollout_record else None
+
+        def record(step: dict[str, Any]) -> None:
+            self._record_step(recorder, step)
+
+        if not super().collect_rollouts(env, _AfterEachStep(self, callback, record), rollout_buffer, n_rollout_steps):
+            return False
+        if recorder is not None:
+            assert self._last_original_obs is not None and self._episode_timesteps is not None
+            self._current_rollout = recorder.finish(
+                self._last_original_obs,
+                self._last_episode_starts,  # type: ignore[arg-type]  # the last step's dones
+                self._episode_timesteps,
+            )
+        return True
+
+    def _record_step(self, recorder: RolloutRecorder | None, step: dict[str, Any]) -> None:
+        """Record one step of ``collect_rollouts`` as the environment gave it (before any ``VecNormalize``).
+
+        Also advances the step counters of the running episodes and the raw last observation, which the replay
+        memory and the linear baseline need even while nothing is recorded (a resumed run may switch them on).
+        """
         vec_normalize = self.get_vec_normalize_env()
-        recorder = None
-        if self._needs_rollout_record:
-            if self._recorder is None or self._recorder.n_envs != env.num_envs:
-                self._recorder = self._make_recorder()
-            recorder = self._recorder
-            recorder.reset()
         episode_timesteps = self._episode_timesteps
         assert episode_timesteps is not None
-        is_box = isinstance(self.action_space, spaces.Box)
-        is_discrete = isinstance(self.action_space, spaces.Discrete)
-        if self.use_sde:
-            self.policy.reset_noise(env.num_envs)
-
-        callback.on_rollout_start()
-
-        while n_steps < n_rollout_steps:
-            if self.use_sde and self.sde_sample_freq > 0 and n_steps % self.sde_sample_freq == 0:
-                self.policy.reset_noise(env.num_envs)
-
-            with th.no_grad():
-                obs_tensor = obs_as_tensor(self._last_obs, self.device)  # type: ignore[arg-type]
-                actions_t, values, log_probs = self.policy(obs_tensor)
-            actions = actions_t.cpu().numpy()
-            clipped_actions = actions
-            if is_box:
-                if self.policy.squash_output:
-                    clipped_actions = self.policy.unscale_action(clipped_actions)
-                else:
-                    clipped_actions = np.clip(actions, self.action_space.low, self.action_space.high)  # type: ignore[attr-defined]
-
-            new_obs, rewards, dones, infos = env.step(clipped_actions)
-            self.num_timesteps += env.num_envs
-
-            callback.update_locals(locals())
-            if not callback.on_step():
-                return False
-
-            self._update_info_buffer(infos, dones)
-            n_steps += 1
-            if is_discrete:
-                actions = actions.reshape(-1, 1)
-
-            if recorder is not None:
-                raw_rewards = vec_normalize.get_original_reward() if vec_normalize is not None else rewards
-                recorder.add(
-                    self._last_original_obs,  # type: ignore[arg-type]
-                    actions,
-                    log_probs.cpu().numpy(),
-                    raw_rewards,
-                    self._last_episode_starts,  # type: ignore[arg-type]
-                    episode_timesteps,
-                )
-            episode_timesteps += 1
-
-            for idx in np.flatnonzero(dones):
-                info = infos[idx]
-                terminal_obs = info.get("terminal_observation")
-                if terminal_obs is not None and info.get("TimeLimit.truncated", False):
-                    if recorder is not None:
-                        raw_terminal = (
-                            vec_normalize.unnormalize_obs(terminal_obs) if vec_normalize is not None else terminal_obs
-                        )
-                        recorder.add_truncation(int(idx), np.asarray(raw_terminal), int(episode_timesteps[idx]))
-                    # Time-limit truncation: bootstrap with the value function (SB3 issue #633)
-                    terminal_obs_t = self.policy.obs_to_tensor(terminal_obs)[0]
-                    with th.no_grad():
-                        terminal_value = self.policy.predict_values(terminal_obs_t)[0]  # type: ignore[arg-type]
-                    rewards[idx] += self.gamma * terminal_value
-                episode_timesteps[idx] = 0
-
-            rollout_buffer.add(
-                self._last_obs,  # type: ignore[arg-type]
-                actions,
-                rewards,
-                self._last_episode_starts,  # type: ignore[arg-type]
-                values,
-                log_probs,
-            )
-            self._last_obs = new_obs  # type: ignore[assignment]
-            self._last_original_obs = vec_normalize.get_original_obs() if vec_normalize is not None else new_obs  # type: ignore[assignment]
-            self._last_episode_starts = dones
-
-        with th.no_grad():
-            values = self.policy.predict_values(obs_as_tensor(new_obs, self.device))  # type: ignore[arg-type]
-        rollout_buffer.compute_returns_and_advantage(last_values=values, dones=dones)
         if recorder is not None:
-            self._current_rollout = recorder.finish(self._last_original_obs, dones, episode_timesteps)  # type: ignore[arg-type]
-
-        callback.update_locals(locals())
-        callback.on_rollout_end()
-        return True
+            raw_rewards = vec_normalize.get_original_reward() if vec_normalize is not None else step["rewards"]
+            recorder.add(
+                self._last_original_obs,  # type: ignore[arg-type]
+                step["actions"],
+                step["log_probs"].cpu().numpy(),
+                raw_rewards,
+                self._last_episode_starts,  # type: ignore[arg-type]
+                episode_timesteps,
+            )
+        episode_timesteps += 1
+        infos = step["infos"]
+        for idx in np.flatnonzero(step["dones"]):
+            terminal_obs = infos[idx].get("terminal_observation")
+            # SB3 bootstraps these time-limit truncations with the value function; a replay re-evaluates them
+            if recorder is not None and terminal_obs is not None and infos[idx].get("TimeLimit.truncated", False):
+                raw_terminal = vec_normalize.unnormalize_obs(terminal_obs) if vec_normalize is not None else terminal_obs
+                recorder.add_truncation(int(idx), np.asarray(raw_terminal), int(episode_timesteps[idx]))
+            episode_timesteps[idx] = 0
+        self._last_original_obs = vec_normalize.get_original_obs() if vec_normalize is not None else step["new_obs"]  # type: ignore[assignment]
 
     # ------------------------------------------------------------------ update
     def train(self) -> None:
@@ -460,20 +570,18 @@ class TRPOPlus(TRPO):
         if self.value_baseline == "linear":
             self._write_linear_baseline_advantages()
         # Re-evaluate the stored rollouts once: the value function does not change before the critic fit
-        replaying = self.replay_memory > 0 and self.rollout_memory
-        self._replayed = [(r, *self._recompute(r)) for r in self.rollout_memory] if replaying else []  # type: ignore[union-attr]
-        batch = self._policy_batch()
-        line_search = self._update_policy(batch)
-        value_loss, skipped_critic_steps = self._update_value_baseline()
+        replayed = self._reevaluate_memory()
+        batch = self._policy_batch(replayed)
+        policy_step = self._update_policy(batch)
+        self.previous_step = policy_step.applied_step  # the next update's CG warm start
+        value_fit = self._update_value_baseline(replayed)
         self._remember_current_rollout()
-        self._replayed = []
         self._n_updates += 1
-        self._log_update(batch, line_search, value_loss, skipped_critic_steps, time.perf_counter() - start)
+        self._log_update(batch, policy_step, value_fit, time.perf_counter() - start)
 
     def _update_target_kl(self) -> None:
         """This update's trust-region radius, ``target_kl`` at the remaining progress (constant unless a schedule)."""
-        schedule = self.target_kl
-        value = float(schedule(self._current_progress_remaining) if callable(schedule) else schedule)
+        value = FloatSchedule(self.target_kl)(self._current_progress_remaining)
         if not (math.isfinite(value) and value >= 0):
             raise ValueError(
                 f"TRPOPlus hyperparameter `target_kl`: its schedule gave {value!r} at remaining progress "
@@ -490,7 +598,8 @@ class TRPOPlus(TRPO):
             obs_tensor = self.policy.obs_to_tensor(observations)[0]
             return self.policy.predict_values(obs_tensor).cpu().numpy().reshape(-1)  # type: ignore[arg-type]
 
-    def _recompute(self, rollout: StoredRollout) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _reevaluate(self, rollout: StoredRollout) -> RolloutEvaluation:
+        """``rollout`` under the current value function and ``VecNormalize`` statistics."""
         vec_normalize = self.get_vec_normalize_env()
         return recompute_advantages(
             rollout,
@@ -503,27 +612,34 @@ class TRPOPlus(TRPO):
             else None,
         )
 
+    def _reevaluate_memory(self) -> list[RolloutEvaluation]:
+        """Every stored rollout, re-evaluated now (none without a replay memory)."""
+        if self.replay_memory == 0 or not self.rollout_memory:
+            return []
+        return [self._reevaluate(rollout) for rollout in self.rollout_memory]
+
     def _write_linear_baseline_advantages(self) -> None:
         """Replace the critic's values / advantages / returns of the current rollout by the linear baseline's."""
         assert self._current_rollout is not None
-        _, values, advantages, returns = self._recompute(self._current_rollout)
-        self.rollout_buffer.values[:] = values
-        self.rollout_buffer.advantages[:] = advantages
-        self.rollout_buffer.returns[:] = returns
+        evaluation = self._reevaluate(self._current_rollout)
+        self.rollout_buffer.values[:] = evaluation.values
+        self.rollout_buffer.advantages[:] = evaluation.advantages
+        self.rollout_buffer.returns[:] = evaluation.returns
 
-    def _policy_batch(self) -> PolicyBatch:
-        """Current rollout (as SB3 buffered it) followed by every replayed rollout, re-evaluated now."""
+    def _policy_batch(self, replayed: Sequence[RolloutEvaluation]) -> PolicyBatch:
+        """Current rollout (as SB3 buffered it) followed by the replayed rollouts."""
         current = next(self.rollout_buffer.get(batch_size=None))
         observations, actions = current.observations, current.actions
         sampling_log_prob, advantages = current.old_log_prob, current.advantages
         n_current = len(advantages)
-        if self.replay_memory > 0 and self.rollout_memory:
+        if replayed:
             obs_list, act_list, logq_list, adv_list = [observations], [actions], [sampling_log_prob], [advantages]
-            for rollout, flat_obs, _, rollout_adv, _ in self._replayed:
-                obs_list.append(self.policy.obs_to_tensor(flat_obs)[0])  # type: ignore[arg-type]
+            for evaluation in replayed:
+                rollout = evaluation.rollout
+                obs_list.append(self.policy.obs_to_tensor(evaluation.observations)[0])  # type: ignore[arg-type]
                 act_list.append(th.as_tensor(rollout.actions.reshape(-1, rollout.actions.shape[-1]), device=self.device))
                 logq_list.append(th.as_tensor(rollout.log_probs.reshape(-1), device=self.device))
-                adv_list.append(th.as_tensor(rollout_adv.reshape(-1), device=self.device))
+                adv_list.append(th.as_tensor(evaluation.advantages.reshape(-1), device=self.device))
             observations = th.cat(obs_list)  # type: ignore[arg-type]
             actions, sampling_log_prob, advantages = th.cat(act_list), th.cat(logq_list), th.cat(adv_list)
         if self.sub_sampling_factor > 1:
@@ -531,62 +647,63 @@ class TRPOPlus(TRPO):
             n_current = len(range(0, n_current, k))
             observations, actions = observations[::k], actions[::k]
             sampling_log_prob, advantages = sampling_log_prob[::k], advantages[::k]
-        return PolicyBatch(observations, actions, sampling_log_prob, advantages, n_current)
-
-    def _importance_weight_scale(self, log_prob: th.Tensor, batch: PolicyBatch) -> tuple[th.Tensor | None, float]:
-        """Truncation factors of the replayed samples' weights ``pi_current / q`` and the weights' ESS (a fraction).
-
-        The current rollout is on-policy by construction (weight 1).
-        """
-        if batch.n_replayed == 0:
-            return None, 1.0
-        rho, scale = importance_weights(log_prob.cpu().numpy(), batch.sampling_log_prob.cpu().numpy(), self.replay_is_clip)
-        rho[: batch.n_current], scale[: batch.n_current] = 1.0, 1.0
-        ess = effective_sample_size(rho * scale) / len(rho)
-        return th.as_tensor(scale, dtype=th.float32, device=self.device), ess
+        return PolicyBatch(
+            observations=observations,
+            actions=actions,
+            sampling_log_prob=sampling_log_prob,
+            advantages=advantages,
+            n_current=n_current,
+        )
 
     def _action_tensor(self, actions: th.Tensor) -> th.Tensor:
         return actions.long().flatten() if isinstance(self.action_space, spaces.Discrete) else actions
 
-    def _update_policy(self, batch: PolicyBatch) -> LineSearchResult:
+    def _update_policy(self, batch: PolicyBatch) -> PolicyStep:
         """Natural-gradient step within the trust region (gradient, CG, step scaling, line search)."""
         actions = self._action_tensor(batch.actions)
         distribution = self.policy.get_distribution(batch.observations)
         # Anchor of the KL constraint and of the Fisher matrix: the current policy on all states
         anchor = detached_distribution(distribution)
-        advantages, ess = self._step_advantages(batch, distribution.log_prob(actions).detach())
+        surrogate = self._step_advantages(batch, distribution.log_prob(actions).detach())
         return self._natural_gradient_step(
-            batch, distribution, actions, advantages, anchor, self.current_target_kl, self._warm_start, ess
+            batch, distribution, actions, surrogate, anchor, self.current_target_kl, self._warm_start
         )
 
-    def _step_advantages(self, batch: PolicyBatch, log_prob: th.Tensor) -> tuple[th.Tensor, float]:
-        """The batch's advantages as the surrogate weighs them (normalised, replayed ones truncated) and the ESS."""
-        weight_scale, ess = self._importance_weight_scale(log_prob, batch)
+    def _step_advantages(self, batch: PolicyBatch, log_prob: th.Tensor) -> SurrogateAdvantages:
+        """The batch's advantages as the surrogate weighs them: normalised, replayed ones' weights truncated.
+
+        ``log_prob`` is the current policy's; the replayed samples' weights ``pi_current / q`` are truncated at
+        ``replay_is_clip`` by a constant factor. The current rollout is on-policy by construction (weight 1).
+        """
         advantages = batch.advantages
         if self.normalize_advantage:
             advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
-        if weight_scale is not None:
-            advantages = advantages * weight_scale
-        return advantages, ess
+        if batch.n_replayed == 0:
+            return SurrogateAdvantages(advantages=advantages, replay_ess=1.0)
+        rho, scale = importance_weights(log_prob.cpu().numpy(), batch.sampling_log_prob.cpu().numpy(), self.replay_is_clip)
+        rho[: batch.n_current], scale[: batch.n_current] = 1.0, 1.0
+        return SurrogateAdvantages(
+            advantages=advantages * th.as_tensor(scale, dtype=th.float32, device=self.device),
+            replay_ess=effective_sample_size(rho * scale) / len(rho),
+        )
 
     def _natural_gradient_step(
         self,
         batch: PolicyBatch,
         distribution: Distribution,
         actions: th.Tensor,
-        advantages: th.Tensor,
+        surrogate: SurrogateAdvantages,
         anchor: Distribution,
         step_kl: float,
         warm_start: Callable[[th.Tensor], th.Tensor | None],
-        ess: float,
-    ) -> LineSearchResult:
+    ) -> PolicyStep:
         """One natural-gradient step from the current parameters.
 
         Gradient of the importance-weighted surrogate and Fisher matrix at ``distribution`` (the policy at the
         current parameters, with its graph), CG started from ``warm_start(gradient)``, a full step of quadratic
-        KL ``step_kl``, and a line search that keeps the KL to ``anchor`` within ``current_target_kl``. Records the CG
-        statistics, and the step for the next update's warm start.
+        KL ``step_kl``, and a line search that keeps the KL to ``anchor`` within ``current_target_kl``.
         """
+        advantages = surrogate.advantages
         log_prob = distribution.log_prob(actions)
         objective = (advantages * th.exp(log_prob - batch.sampling_log_prob)).mean()
         gradient = flat_gradient(objective, self._actor_params, retain_graph=self.fisher_sub_sampling == 1)
@@ -614,18 +731,18 @@ class TRPOPlus(TRPO):
             self._actor_params, full_step, evaluate, float(objective.detach()), self.current_target_kl,
             self.line_search_shrinking_factor, self.line_search_max_iter,
         )  # fmt: skip
-        self.previous_step = (result.coefficient * full_step).cpu().numpy() if result.accepted else None
-        self._cg_stats = {
-            "cg_iterations": cg.iterations,
-            "cg_residual": cg.residual_norm,
-            "cg_relative_residual": cg.residual_norm / max(float(th.linalg.vector_norm(gradient)), 1e-12),
-            "step_gradient_cosine": _cosine(gradient, direction),
-            "fisher_products": cg.matvecs + (0 if cg.quadratic_form > 0 else 1),
-            "cg_warm_start_cosine": _cosine(start, direction) if start is not None else 0.0,
-            "objective_before": float(objective.detach()),
-            "replay_ess": ess,
-        }
-        return result
+        return PolicyStep(
+            line_search=result,
+            applied_step=(result.coefficient * full_step).cpu().numpy() if result.accepted else None,
+            objective_before=float(objective.detach()),
+            cg_iterations=cg.iterations,
+            cg_residual=cg.residual_norm,
+            cg_relative_residual=cg.residual_norm / max(float(th.linalg.vector_norm(gradient)), 1e-12),
+            step_gradient_cosine=_cosine(gradient, direction),
+            fisher_vector_products=cg.matvecs + (0 if cg.quadratic_form > 0 else 1),
+            cg_warm_start_cosine=_cosine(start, direction) if start is not None else 0.0,
+            replay_ess=surrogate.replay_ess,
+        )
 
     def _warm_start(self, gradient: th.Tensor) -> th.Tensor | None:
         """Previous full step (thesis 5.3.2), or None at the first update / after a rejected line search."""
@@ -633,17 +750,14 @@ class TRPOPlus(TRPO):
             return None
         return th.as_tensor(self.previous_step, dtype=gradient.dtype, device=gradient.device)
 
-    def _update_value_baseline(self) -> tuple[float, int]:
-        """Fit the critic (Adam epochs) or refit the linear baseline.
-
-        :return: mean value loss and the number of critic steps skipped for non-finite gradients
-        """
+    def _update_value_baseline(self, replayed: Sequence[RolloutEvaluation]) -> ValueFit:
+        """Fit the critic (Adam epochs) or refit the linear baseline; ``replayed`` only with ``replay_critic``."""
         if self.value_baseline == "linear":
-            return self._fit_linear_baseline(), 0
+            return ValueFit(loss=self._fit_linear_baseline(replayed), skipped_steps=0)
         value_losses = []
         skipped = 0
         for _ in range(self.n_critic_updates):
-            for observations, returns in self._critic_minibatches():
+            for observations, returns in self._critic_minibatches(replayed):
                 values_pred = self.policy.predict_values(observations)
                 value_loss = F.mse_loss(returns, values_pred.flatten())
                 loss = value_loss.item()
@@ -658,35 +772,36 @@ class TRPOPlus(TRPO):
                     param.grad = None
                 value_losses.append(loss)
                 self.policy.optimizer.step()
-        return (float(np.mean(value_losses)) if value_losses else math.nan), skipped
+        return ValueFit(loss=float(np.mean(value_losses)) if value_losses else math.nan, skipped_steps=skipped)
 
-    def _critic_minibatches(self) -> Iterable[tuple[th.Tensor, th.Tensor]]:
-        if not (self.replay_critic and self.rollout_memory and self.replay_memory > 0):
+    def _critic_minibatches(self, replayed: Sequence[RolloutEvaluation]) -> Iterable[tuple[th.Tensor, th.Tensor]]:
+        """Minibatches of (observations, returns): the current rollout's, with ``replay_critic`` the replayed ones' too."""
+        if not (self.replay_critic and replayed):
             for data in self.rollout_buffer.get(self.batch_size):
                 yield data.observations, data.returns  # type: ignore[misc]
             return
         current = next(self.rollout_buffer.get(batch_size=None))
         obs_list, ret_list = [current.observations], [current.returns]
-        for _, flat_obs, _, _, rollout_returns in self._replayed:
-            obs_list.append(self.policy.obs_to_tensor(flat_obs)[0])  # type: ignore[arg-type]
-            ret_list.append(th.as_tensor(rollout_returns.reshape(-1), device=self.device))
+        for evaluation in replayed:
+            obs_list.append(self.policy.obs_to_tensor(evaluation.observations)[0])  # type: ignore[arg-type]
+            ret_list.append(th.as_tensor(evaluation.returns.reshape(-1), device=self.device))
         observations, returns = th.cat(obs_list), th.cat(ret_list)  # type: ignore[arg-type]
         order = th.as_tensor(np.random.permutation(len(returns)), device=self.device)
         for start in range(0, len(returns), self.batch_size):
             idx = order[start : start + self.batch_size]
             yield observations[idx], returns[idx]
 
-    def _fit_linear_baseline(self) -> float:
+    def _fit_linear_baseline(self, replayed: Sequence[RolloutEvaluation]) -> float:
         assert self.linear_baseline is not None and self._current_rollout is not None
         buffer = self.rollout_buffer
         obs = buffer.observations.reshape(buffer.buffer_size * buffer.n_envs, -1)  # type: ignore[union-attr]
         timesteps = self._current_rollout.episode_timesteps.reshape(-1)
         returns = buffer.returns.reshape(-1)
-        if self.replay_critic and self.replay_memory > 0:
-            for rollout, flat_obs, _, _, rollout_returns in self._replayed:
-                obs = np.concatenate([obs, flat_obs.reshape(len(flat_obs), -1)])
-                timesteps = np.concatenate([timesteps, rollout.episode_timesteps.reshape(-1)])
-                returns = np.concatenate([returns, rollout_returns.reshape(-1)])
+        if self.replay_critic:
+            for evaluation in replayed:
+                obs = np.concatenate([obs, evaluation.observations.reshape(len(evaluation.observations), -1)])
+                timesteps = np.concatenate([timesteps, evaluation.rollout.episode_timesteps.reshape(-1)])
+                returns = np.concatenate([returns, evaluation.returns.reshape(-1)])
         self.linear_baseline.fit(obs, timesteps, returns)
         return float(np.mean((self.linear_baseline.predict(obs, timesteps) - returns) ** 2))
 
@@ -696,13 +811,11 @@ class TRPOPlus(TRPO):
             self.rollout_memory.append(self._current_rollout)
         self._current_rollout = None
 
-    def _log_update(
-        self, batch: PolicyBatch, line_search: LineSearchResult, value_loss: float, skipped_critic_steps: int, seconds: float
-    ) -> None:
-        stats = self._cg_stats
+    def _log_update(self, batch: PolicyBatch, step: PolicyStep, value_fit: ValueFit, seconds: float) -> None:
+        line_search = step.line_search
         record = self.logger.record
-        record("train/policy_objective", line_search.objective if line_search.accepted else stats["objective_before"])
-        record("train/value_loss", value_loss)
+        record("train/policy_objective", line_search.objective if line_search.accepted else step.objective_before)
+        record("train/value_loss", value_fit.loss)
         record("train/kl_divergence_loss", line_search.kl)
         record("train/target_kl", self.current_target_kl)
         record(
@@ -713,18 +826,18 @@ class TRPOPlus(TRPO):
         if hasattr(self.policy, "log_std"):
             record("train/std", th.exp(self.policy.log_std).mean().item())  # type: ignore[operator]
         record("train/n_updates", self._n_updates, exclude="tensorboard")
-        record("train/cg_iterations", stats["cg_iterations"])
-        record("train/cg_residual", stats["cg_residual"])
-        record("train/cg_relative_residual", stats["cg_relative_residual"])
-        record("train/step_gradient_cosine", stats["step_gradient_cosine"])
-        record("train/fisher_vector_products", stats["fisher_products"])
-        record("train/cg_warm_start_cosine", stats["cg_warm_start_cosine"])
+        record("train/cg_iterations", step.cg_iterations)
+        record("train/cg_residual", step.cg_residual)
+        record("train/cg_relative_residual", step.cg_relative_residual)
+        record("train/step_gradient_cosine", step.step_gradient_cosine)
+        record("train/fisher_vector_products", step.fisher_vector_products)
+        record("train/cg_warm_start_cosine", step.cg_warm_start_cosine)
         record("train/line_search_steps", line_search.steps)
         record("train/step_size", line_search.coefficient)
         record("train/line_search_nonfinite", float(line_search.nonfinite))
         record("train/replay_samples", batch.n_replayed)
-        record("train/replay_ess", stats["replay_ess"])
-        record("train/critic_skipped_steps", skipped_critic_steps)
+        record("train/replay_ess", step.replay_ess)
+        record("train/critic_skipped_steps", value_fit.skipped_steps)
         record("train/update_time", seconds)
 
     # ------------------------------------------------------------------ learn / save / load
@@ -737,17 +850,31 @@ class TRPOPlus(TRPO):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfTRPOPlus:
-        return super().learn(
-            total_timesteps=total_timesteps,
-            callback=callback,
-            log_interval=log_interval,
-            tb_log_name=tb_log_name,
-            reset_num_timesteps=reset_num_timesteps,
-            progress_bar=progress_bar,
-        )
+        """SB3's ``learn``. A rollout worker process that dies raises
+        :class:`~sb3_trpo_plus.vec_env.RolloutWorkerError` naming the worker and its env; the weights are those of
+        the last completed update (an update starts only once its rollout is complete).
+        Ctrl-C: see :class:`~sb3_trpo_plus.callbacks.SaveOnInterrupt`.
+        """
+        from sb3_trpo_plus.vec_env import subprocess_env_ids, worker_failure
+
+        env_ids = subprocess_env_ids(self.env)  # asked now: a dead worker cannot say which env it stepped
+        try:
+            return super().learn(
+                total_timesteps=total_timesteps,
+                callback=callback,
+                log_interval=log_interval,
+                tb_log_name=tb_log_name,
+                reset_num_timesteps=reset_num_timesteps,
+                progress_bar=progress_bar,
+            )
+        except (EOFError, ConnectionError) as error:
+            failure = worker_failure(self.env, error, env_ids)
+            if failure is None:
+                raise
+            raise failure from error
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_actor_params", "_recorder", "_cg_stats", "_replayed"]
+        return [*super()._excluded_save_params(), "_actor_params"]
 
     def save(
         self,

@@ -43,7 +43,7 @@ def test_several_steps_stay_in_the_trust_region() -> None:
         after = model.policy.get_distribution(batch.observations)
         kls.append(float(kl_divergence(after, before).mean().detach()))
         steps.append(model.logger.name_to_value["train/policy_steps"])
-        assert result.kl == pytest.approx(kls[-1], rel=1e-5)  # the logged KL is the whole update's
+        assert result.line_search.kl == pytest.approx(kls[-1], rel=1e-5)  # the logged KL is the whole update's
         return result
 
     model._update_policy = measured  # type: ignore[method-assign]

@@ -46,11 +46,13 @@ def test_recompute_advantages_hand_computed() -> None:
     def value_fn(obs: np.ndarray, t: np.ndarray) -> np.ndarray:
         return obs[:, 0]
 
-    obs, values, advantages, returns = recompute_advantages(_toy_rollout(), value_fn, gamma=0.5, gae_lambda=0.5)
-    np.testing.assert_allclose(advantages[:, 0], [1.75, 3.0, 3.0, 2.0])
-    np.testing.assert_allclose(returns[:, 0], [2.25, 4.0, 4.5, 4.0])
-    np.testing.assert_allclose(values[:, 0], [0.5, 1.0, 1.5, 2.0])
-    assert obs.shape == (4, 1)
+    rollout = _toy_rollout()
+    evaluation = recompute_advantages(rollout, value_fn, gamma=0.5, gae_lambda=0.5)
+    np.testing.assert_allclose(evaluation.advantages[:, 0], [1.75, 3.0, 3.0, 2.0])
+    np.testing.assert_allclose(evaluation.returns[:, 0], [2.25, 4.0, 4.5, 4.0])
+    np.testing.assert_allclose(evaluation.values[:, 0], [0.5, 1.0, 1.5, 2.0])
+    assert evaluation.observations.shape == (4, 1)
+    assert evaluation.rollout is rollout
 
 
 def test_recompute_uses_current_normalisation() -> None:
@@ -58,12 +60,12 @@ def test_recompute_uses_current_normalisation() -> None:
         return obs[:, 0]
 
     # value doubles, rewards halve: recomputation must see both
-    _, values, _, returns = recompute_advantages(
+    evaluation = recompute_advantages(
         _toy_rollout(), value_fn, 0.5, 0.5, normalize_obs=lambda o: 2 * o, normalize_reward=lambda r: r / 2
     )
-    np.testing.assert_allclose(values[:, 0], [1.0, 2.0, 3.0, 4.0])
+    np.testing.assert_allclose(evaluation.values[:, 0], [1.0, 2.0, 3.0, 4.0])
     # terminated last step: return = normalised reward only
-    assert returns[3, 0] == pytest.approx(2.0)
+    assert evaluation.returns[3, 0] == pytest.approx(2.0)
 
 
 def test_compute_gae_matches_sb3_rollout_buffer() -> None:

@@ -185,8 +185,8 @@ def test_critic_is_fit_on_current_rollout_only() -> None:
     batches = []
     original = model._critic_minibatches
 
-    def spy():
-        for obs, ret in original():
+    def spy(replayed):
+        for obs, ret in original(replayed):
             batches.append(len(obs))
             yield obs, ret
 
