@@ -1,12 +1,20 @@
-"""Callbacks: per-term reward logging and hyperparameters in TensorBoard."""
+"""Callbacks: per-term reward logging and hyperparameters in TensorBoard; Ctrl-C that stops cleanly and saves."""
 
 from __future__ import annotations
 
+import os
+import pickle
+import signal
+import tempfile
+import threading
 from collections import defaultdict
+from pathlib import Path
+from types import FrameType
 from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import HParam
+from stable_baselines3.common.vec_env import VecNormalize
 
 HPARAM_NAMES = (
     "learning_rate", "n_steps", "batch_size", "gamma", "gae_lambda", "target_kl", "cg_max_steps", "cg_damping",
@@ -51,3 +59,106 @@ class RewardTermsCallback(BaseCallback):
     def _on_rollout_end(self) -> None:
         for key, total in self._sums.items():
             self.logger.record(f"rollout/{key}", total / max(self._counts[key], 1))
+
+
+def save_vec_normalize(vec_normalize: VecNormalize, path: str | Path) -> None:
+    """``VecNormalize.save``, atomically: a temporary file renamed over ``path`` once written, so that a crash or a
+    full disk leaves the previous statistics intact (``VecNormalize.save`` writes in place)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as file:
+            pickle.dump(vec_normalize, file)  # what VecNormalize.save writes (its __getstate__ drops the venv)
+            file.flush()
+            os.fsync(file.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp_name, 0o666 & ~umask)
+        os.replace(tmp_name, path)
+    finally:
+        if os.path.exists(tmp_name):
+            os.unlink(tmp_name)
+
+
+class StopTrainingOnInterrupt(BaseCallback):
+    """Ctrl-C (SIGINT) stops ``learn`` at the next environment step instead of wherever it falls.
+
+    A ``KeyboardInterrupt`` raised in the middle of an update would leave the policy between two line-search
+    trials and the critic between two minibatches. With this callback the first Ctrl-C only sets a flag: the
+    running step or update completes, then ``learn`` returns as after its last step (the partial rollout is
+    dropped), so the model is in the state of its last complete update and can be saved. A second Ctrl-C
+    interrupts at once (the handler in place before training is restored after the first). Only in the main
+    thread, where Python delivers signals.
+    """
+
+    def __init__(self, verbose: int = 0):
+        super().__init__(verbose)
+        self.interrupted = False
+        self._previous_handler: Any = None
+        self._installed = False
+
+    def _on_training_start(self) -> None:
+        self.interrupted = False
+        if threading.current_thread() is threading.main_thread():
+            self._previous_handler = signal.signal(signal.SIGINT, self._on_sigint)
+            self._installed = True
+
+    def _on_sigint(self, signum: int, frame: FrameType | None) -> None:
+        self.interrupted = True
+        self._restore_handler()
+        if self.verbose:
+            print("Ctrl-C: stopping after the current step (Ctrl-C again to interrupt at once)")
+
+    def _restore_handler(self) -> None:
+        if self._installed:
+            signal.signal(signal.SIGINT, self._previous_handler)
+            self._installed = False
+
+    def _on_step(self) -> bool:
+        return not self.interrupted
+
+    def _on_training_end(self) -> None:
+        self._restore_handler()
+
+
+class SaveOnInterrupt(StopTrainingOnInterrupt):
+    """Ctrl-C stops ``learn`` cleanly (see :class:`StopTrainingOnInterrupt`), saves a checkpoint, then raises
+    ``KeyboardInterrupt`` from ``learn`` (``reraise=False``: ``learn`` returns instead).
+
+    The checkpoint: ``<save_path>/<name_prefix>.zip`` (the model; a TRPOPlus zip holds the replay memory and the
+    random generators' states) and, where the env is normalised, ``<save_path>/<name_prefix>_vecnormalize.pkl``,
+    both written atomically. Resume with ``TRPOPlus.load(zip, env=VecNormalize.load(pkl, venv))`` and
+    ``learn(..., reset_num_timesteps=False)``.
+
+    :param save_path: folder of the checkpoint
+    :param name_prefix: file name stem
+    :param reraise: raise ``KeyboardInterrupt`` once saved, as an uncaught Ctrl-C would
+    """
+
+    def __init__(self, save_path: str | Path, name_prefix: str = "interrupted", reraise: bool = True, verbose: int = 0):
+        super().__init__(verbose)
+        self.save_path = Path(save_path)
+        self.name_prefix = name_prefix
+        self.reraise = reraise
+
+    @property
+    def model_path(self) -> Path:
+        return self.save_path / f"{self.name_prefix}.zip"
+
+    @property
+    def vec_normalize_path(self) -> Path:
+        return self.save_path / f"{self.name_prefix}_vecnormalize.pkl"
+
+    def _on_training_end(self) -> None:
+        super()._on_training_end()
+        if not self.interrupted:
+            return
+        self.model.save(self.model_path)
+        vec_normalize = self.model.get_vec_normalize_env()
+        if vec_normalize is not None:
+            save_vec_normalize(vec_normalize, self.vec_normalize_path)
+        if self.verbose:
+            print(f"Ctrl-C: saved {self.model_path}")
+        if self.reraise:
+            raise KeyboardInterrupt

@@ -71,8 +71,49 @@ def _name_tensorboard_runs() -> None:
     ExperimentManager.learn = learn  # type: ignore[method-assign]
 
 
+def _save_cleanly_on_interrupt() -> None:
+    """Ctrl-C in ``trpo-plus train``: training stops at the next env step (not inside an update) and rl-zoo3 saves
+    the model (with the replay memory) and the VecNormalize statistics, the latter atomically too."""
+    from rl_zoo3.exp_manager import ExperimentManager
+
+    from sb3_trpo_plus.callbacks import StopTrainingOnInterrupt, save_vec_normalize
+
+    if getattr(ExperimentManager.save_trained_model, "_atomic", False):
+        return
+    original_learn, original_save = ExperimentManager.learn, ExperimentManager.save_trained_model
+
+    @functools.wraps(original_learn)
+    def learn(self: Any, model: Any) -> None:
+        stop = StopTrainingOnInterrupt(verbose=1)
+        self.callbacks.append(stop)  # last: callbacks[0] is the one rl-zoo3 closes after an interrupt
+        try:
+            original_learn(self, model)
+        finally:
+            self.callbacks.remove(stop)
+        if stop.interrupted:
+            print("trpo-plus train: interrupted, saving the model, its replay memory and the VecNormalize statistics")
+
+    @functools.wraps(original_save)
+    def save_trained_model(self: Any, model: Any) -> None:
+        normalize, self.normalize = self.normalize, False
+        try:
+            original_save(self, model)
+        finally:
+            self.normalize = normalize
+        if normalize:
+            save_vec_normalize(model.get_vec_normalize_env(), os.path.join(self.params_path, "vecnormalize.pkl"))
+
+    save_trained_model._atomic = True  # type: ignore[attr-defined]
+    ExperimentManager.learn = learn  # type: ignore[method-assign]
+    ExperimentManager.save_trained_model = save_trained_model  # type: ignore[method-assign]
+
+
 def train(argv: Sequence[str]) -> None:
-    """``trpo-plus train --env ID [--algo trpo_plus|trpo|ppo] [rl_zoo3 train flags]``."""
+    """``trpo-plus train --env ID [--algo trpo_plus|trpo|ppo] [rl_zoo3 train flags]``.
+
+    Ctrl-C stops at the next env step and saves the run (model, replay memory, VecNormalize statistics), from which
+    ``-i <run>/<ENV>.zip`` resumes.
+    """
     parser = argparse.ArgumentParser(prog="trpo-plus train", add_help=False)
     parser.add_argument("--algo", default="trpo_plus", choices=ALGO_CHOICES)
     parser.add_argument("--env", required=True)
@@ -84,6 +125,7 @@ def train(argv: Sequence[str]) -> None:
     import grasp_envs  # noqa: F401
 
     _name_tensorboard_runs()
+    _save_cleanly_on_interrupt()
     sys.argv = ["trpo-plus train", *_zoo_argv(known.algo, known.env, rest)]
     zoo_train()
 
@@ -165,7 +207,7 @@ def enjoy(argv: Sequence[str]) -> dict[str, Any]:
         args.algo, args.env, folder, args.exp_id, args.load_best, args.seed, render=False, n_envs=args.n_envs,
         render_mode=None if args.no_render else "human", env_kwargs=_literal_kwargs(args.env_kwargs),
         load_checkpoint=checkpoint, load_last_checkpoint=args.load_last_checkpoint, norm_reward=args.norm_reward,
-        device=args.device,
+        device=args.device, reseed_with_model_seed=False,
     )  # fmt: skip
     returns: list[float] = []
     lengths: list[int] = []
@@ -262,11 +304,15 @@ def _load_trained(
     load_last_checkpoint: bool = False,
     norm_reward: bool = False,
     device: str = "cpu",
+    reseed_with_model_seed: bool = True,
 ) -> tuple[Any, Any, str]:
     """Agent and test env of an rl-zoo3 run (VecNormalize statistics and env kwargs restored), and the run folder.
 
     The weights-only path by default (:mod:`sb3_trpo_plus.agents`: nothing in the run is unpickled or evaluated);
     ``trust_pickle`` loads the full model with SB3. ``render`` makes the env render RGB frames.
+    ``reseed_with_model_seed``: seed the env with the model's training seed where it has one, in place of ``seed``,
+    as SB3's ``load(path, env=env)`` does (``set_random_seed`` seeds the env it is given); the success rates in
+    ``trained_agents/agents.json`` were measured that way. ``trpo-plus enjoy`` passes False and honours ``--seed``.
     """
     from huggingface_sb3 import EnvironmentName
     from rl_zoo3.utils import get_model_path
@@ -282,6 +328,12 @@ def _load_trained(
         render_mode="rgb_array" if render else render_mode, env_kwargs=env_kwargs, norm_reward=norm_reward,
         device=device,
     )  # fmt: skip
+    if reseed_with_model_seed:
+        from sb3_trpo_plus.agents import read_model_data
+
+        model_seed = read_model_data(model_path).get("seed")
+        if isinstance(model_seed, int):
+            env.seed(model_seed)
     return agent, env, log_path
 
 

@@ -907,11 +907,15 @@ class TRPOPlus(TRPO):
                 umask = os.umask(0)
                 os.umask(umask)
                 os.chmod(tmp_name, 0o666 & ~umask)
-                with open(tmp_name, "wb") as tmp_file:
-                    super().save(tmp_file, exclude=exclude, include=include)  # type: ignore[arg-type]
-                    tmp_file.flush()
-                    os.fsync(tmp_file.fileno())
-                os.replace(tmp_name, target)
+                try:
+                    with open(tmp_name, "wb") as tmp_file:
+                        super().save(tmp_file, exclude=exclude, include=include)  # type: ignore[arg-type]
+                        tmp_file.flush()
+                        os.fsync(tmp_file.fileno())
+                    os.replace(tmp_name, target)
+                except OSError as error:  # e.g. a full disk: the previous file was never touched
+                    message = f"{error.strerror or error}: saving {target} failed; the previous file is unchanged"
+                    raise OSError(error.errno, message) from error
             finally:
                 if os.path.exists(tmp_name):
                     os.unlink(tmp_name)
@@ -929,8 +933,20 @@ class TRPOPlus(TRPO):
         force_reset: bool = True,
         **kwargs: Any,
     ) -> SelfTRPOPlus:
-        """Load a model; restores the replay memory, the warm-start step and the random generators' states."""
-        model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
+        """Load a model; restores the replay memory, the warm-start step and the random generators' states.
+
+        Unpickles parts of the zip: load only files you trust (``sb3_trpo_plus.agents`` reads a policy as data).
+        A truncated or corrupted file raises ``ValueError`` naming it and what failed.
+        """
+        import pickle
+        import zipfile
+
+        try:
+            model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
+        except (ValueError, EOFError, RuntimeError, KeyError, pickle.UnpicklingError, zipfile.BadZipFile) as error:
+            where = path if isinstance(path, str | pathlib.Path) else "the model stream"
+            cause = f"{type(error).__name__}: {error}"
+            raise ValueError(f"{where}: cannot load the model (truncated or corrupted?): {cause}") from error
         states = model._rng_states
         if states:
             th.set_rng_state(states["torch"])

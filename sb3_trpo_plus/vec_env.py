@@ -7,18 +7,25 @@ worker and the workers step their shards in parallel. Observations, rewards, don
 in env order, with SB3's auto-reset and ``terminal_observation`` semantics (those of ``DummyVecEnv``).
 With ``in_process=True`` the learner process steps the last shard itself, as the thesis' master process
 sampled too: on a 2-core machine, 2 workers are then one worker process plus the learner.
+
+A worker that dies (killed, out of memory, a crash in native code) raises :class:`RolloutWorkerError`
+naming the worker, its process and the envs it stepped, instead of a bare ``EOFError`` /
+``BrokenPipeError``; :func:`worker_failure` gives SB3's ``SubprocVecEnv`` the same message. Workers
+ignore SIGINT: Ctrl-C reaches the learner alone, which stops and closes them.
 """
 
 from __future__ import annotations
 
 import multiprocessing as mp
+import signal
+import time
 from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 
@@ -45,10 +52,38 @@ def _handle(venv: DummyVecEnv, command: str, data: Any) -> Any:
         return venv.env_is_wrapped(*data)
     if command == "spaces":
         return venv.observation_space, venv.action_space, venv.render_mode
+    if command == "env_ids":
+        return [_env_id(env) for env in venv.envs]
     raise NotImplementedError(f"ShardedSubprocVecEnv worker: unknown command {command!r}")
 
 
+def _env_id(env: gym.Env) -> str:
+    spec = getattr(env, "spec", None)
+    return spec.id if spec is not None else type(env.unwrapped).__name__
+
+
+class RolloutWorkerError(RuntimeError):
+    """A rollout worker process died; the message names the worker, its process and its envs."""
+
+
+def _death_cause(process: Any) -> str:
+    """How a worker process ended, waiting up to a second for the operating system to report it."""
+    deadline = time.monotonic() + 1.0
+    while process.exitcode is None and time.monotonic() < deadline:
+        process.join(timeout=0.05)
+    code = process.exitcode
+    if code is None:
+        return "its pipe closed while the process still runs"
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
+
+
 def _worker(remote: Connection, parent_remote: Connection, env_fns: CloudpickleWrapper) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the learner's to handle: it stops and closes us
     parent_remote.close()
     venv = DummyVecEnv(env_fns.var)
     try:
@@ -130,9 +165,35 @@ class ShardedSubprocVecEnv(VecEnv):
             self.processes.append(process)
         self.waiting = False
         self.closed = False
-        self.remotes[0].send(("spaces", None))
-        observation_space, action_space, self.render_mode = self.remotes[0].recv()
+        self._env_ids: list[str] = [f"env {i}" for i in range(n_envs)]
+        self._send(0, ("spaces", None))
+        observation_space, action_space, self.render_mode = self._recv(0)
+        for worker in range(len(self.remotes)):
+            self._send(worker, ("env_ids", None))
+        self._env_ids = [env_id for worker in range(len(self.remotes)) for env_id in self._recv(worker)]
         super().__init__(n_envs, observation_space, action_space)
+
+    def _send(self, worker: int, message: tuple[str, Any]) -> None:
+        try:
+            self.remotes[worker].send(message)
+        except (ConnectionError, EOFError) as error:
+            raise self._worker_died(worker, error) from error
+
+    def _recv(self, worker: int) -> Any:
+        try:
+            return self.remotes[worker].recv()
+        except (ConnectionError, EOFError) as error:
+            raise self._worker_died(worker, error) from error
+
+    def _worker_died(self, worker: int, error: BaseException) -> RolloutWorkerError:
+        self.waiting = False
+        process = self.processes[worker] if worker < len(self.processes) else None
+        cause = _death_cause(process) if process is not None else repr(error)
+        envs = ", ".join(f"{i} ({self._env_ids[i]})" for i in self._shards[worker])
+        pid = f" (pid {process.pid})" if process is not None else ""
+        return RolloutWorkerError(
+            f"ShardedSubprocVecEnv worker {worker}{pid} died, {cause}, while stepping envs {envs} [{type(error).__name__}]"
+        )
 
     @property
     def n_workers(self) -> int:
@@ -143,12 +204,12 @@ class ShardedSubprocVecEnv(VecEnv):
         return isinstance(self.remotes[-1], _InProcessShard)
 
     def step_async(self, actions: np.ndarray) -> None:
-        for remote, chunk in zip(self.remotes, np.split(np.asarray(actions), self._splits), strict=True):
-            remote.send(("step", chunk))
+        for worker, chunk in enumerate(np.split(np.asarray(actions), self._splits)):
+            self._send(worker, ("step", chunk))
         self.waiting = True
 
     def step_wait(self) -> VecEnvStepReturn:
-        results = [remote.recv() for remote in self.remotes]
+        results = [self._recv(worker) for worker in range(len(self.remotes))]
         self.waiting = False
         obs, rewards, dones, infos = zip(*results, strict=True)
         return (
@@ -159,9 +220,9 @@ class ShardedSubprocVecEnv(VecEnv):
         )
 
     def reset(self) -> VecEnvObs:
-        for remote, shard in zip(self.remotes, self._shards, strict=True):
-            remote.send(("reset", ([self._seeds[i] for i in shard], [self._options[i] for i in shard])))
-        results = [remote.recv() for remote in self.remotes]
+        for worker, shard in enumerate(self._shards):
+            self._send(worker, ("reset", ([self._seeds[i] for i in shard], [self._options[i] for i in shard])))
+        results = [self._recv(worker) for worker in range(len(self.remotes))]
         obs, reset_infos = zip(*results, strict=True)
         self.reset_infos = [info for shard_infos in reset_infos for info in shard_infos]
         self._reset_seeds()
@@ -174,21 +235,28 @@ class ShardedSubprocVecEnv(VecEnv):
         return np.concatenate(parts)
 
     def close(self) -> None:
+        """Close every shard; a dead worker is skipped, one that does not exit within 10 s is terminated."""
         if self.closed:
             return
-        if self.waiting:
-            for remote in self.remotes:
-                remote.recv()
         for remote in self.remotes:
-            remote.send(("close", None))
+            try:
+                if self.waiting:
+                    remote.recv()
+                remote.send(("close", None))
+            except (ConnectionError, EOFError):
+                pass  # a dead worker: nothing to close
+        self.waiting = False
         for process in self.processes:
-            process.join()
+            process.join(timeout=10)
+            if process.is_alive():
+                process.terminate()
+                process.join()
         self.closed = True
 
     def get_images(self) -> Sequence[np.ndarray | None]:
-        for remote in self.remotes:
-            remote.send(("get_images", None))
-        return [image for remote in self.remotes for image in remote.recv()]
+        for worker in range(len(self.remotes)):
+            self._send(worker, ("get_images", None))
+        return [image for worker in range(len(self.remotes)) for image in self._recv(worker)]
 
     def _route(self, indices: VecEnvIndices) -> list[tuple[int, list[int]]]:
         """(worker, local indices) pairs covering ``indices``, in worker order."""
@@ -203,16 +271,16 @@ class ShardedSubprocVecEnv(VecEnv):
     def _ask(self, command: str, indices: VecEnvIndices, payload: Callable[[list[int]], Any]) -> list[Any]:
         routes = self._route(indices)
         for worker, local in routes:
-            self.remotes[worker].send((command, payload(local)))
-        return [value for worker, _ in routes for value in self.remotes[worker].recv()]
+            self._send(worker, (command, payload(local)))
+        return [value for worker, _ in routes for value in self._recv(worker)]
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
         return self._ask("get_attr", indices, lambda local: (attr_name, local))
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         for worker, local in self._route(indices):
-            self.remotes[worker].send(("set_attr", (attr_name, value, local)))
-            self.remotes[worker].recv()
+            self._send(worker, ("set_attr", (attr_name, value, local)))
+            self._recv(worker)
 
     def env_method(
         self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
@@ -221,3 +289,45 @@ class ShardedSubprocVecEnv(VecEnv):
 
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
         return self._ask("env_is_wrapped", indices, lambda local: (wrapper_class, local))
+
+
+def _innermost(venv: VecEnv) -> VecEnv:
+    while isinstance(venv, VecEnvWrapper):
+        venv = venv.venv
+    return venv
+
+
+def subprocess_env_ids(venv: VecEnv | None) -> list[str] | None:
+    """The env ids of an SB3 ``SubprocVecEnv`` (under any wrappers), asked while its workers live; else None."""
+    inner = _innermost(venv) if venv is not None else None
+    if not isinstance(inner, SubprocVecEnv):
+        return None
+    try:
+        return [spec.id if spec is not None else f"env {i}" for i, spec in enumerate(inner.get_attr("spec"))]
+    except (ConnectionError, EOFError, AttributeError):
+        return None
+
+
+def worker_failure(venv: VecEnv | None, error: BaseException, env_ids: list[str] | None = None) -> RolloutWorkerError | None:
+    """For a pipe error of an SB3 ``SubprocVecEnv``: a :class:`RolloutWorkerError` naming the dead worker and its env.
+
+    None when ``venv`` is no ``SubprocVecEnv`` or none of its workers died (the error has another cause).
+    """
+    inner = _innermost(venv) if venv is not None else None
+    if not isinstance(inner, SubprocVecEnv):
+        return None
+    deadline = time.monotonic() + 1.0
+    dead: list[int] = []
+    while not dead and time.monotonic() < deadline:
+        dead = [i for i, process in enumerate(inner.processes) if not process.is_alive()]
+        if not dead:
+            time.sleep(0.05)
+    if not dead:
+        return None
+    inner.waiting = False
+    names = env_ids or [f"env {i}" for i in range(inner.num_envs)]
+    described = "; ".join(
+        f"worker {i} (pid {inner.processes[i].pid}) stepping env {i} ({names[i]}), {_death_cause(inner.processes[i])}"
+        for i in dead
+    )
+    return RolloutWorkerError(f"SubprocVecEnv rollout worker died: {described} [{type(error).__name__}]")
