@@ -1,6 +1,6 @@
 """env.step time against raw mj_step time for the same frame_skip, for every grasp_envs task.
 
-    python benchmarks/env_speed.py [--steps 20000] [--repeats 5] [--envs Grasper3D-v2 ...]
+    python -m benchmarks.env_speed [--steps 20000] [--repeats 5] [--envs Grasper3D-v2 ...]
 
 Prints a Markdown table (median of repeats) for docs/environments.md.
 """

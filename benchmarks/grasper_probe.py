@@ -1,9 +1,9 @@
-"""Why does a Grasper run stop at the grasp? Probe a saved run of benchmarks/convergence.py.
+"""Why does a Grasper run stop at the grasp? Probe a saved run of the convergence study (benchmarks/convergence.py).
 
-    python benchmarks/grasper_probe.py --env Grasper3D-v4 --variant warm --seed 3 [--episodes 30]
-    python benchmarks/grasper_probe.py --env Grasper3D-v4 --variant plain_scripted25 --seed 2 --failures [--episodes 40]
-    python benchmarks/grasper_probe.py --env Grasper3D-v5 --variant plain_scripted25_late --seed 8 --losses [--episodes 40]
-    python benchmarks/grasper_probe.py --env Grasper3D-v5 --variant plain_scripted25_late --seed 8 --what-if [--episodes 40]
+    python -m benchmarks.grasper_probe --env Grasper3D-v4 --variant warm --seed 3 [--episodes 30]
+    python -m benchmarks.grasper_probe --env Grasper3D-v4 --variant plain_scripted25 --seed 2 --failures [--episodes 40]
+    python -m benchmarks.grasper_probe --env Grasper3D-v5 --variant plain_scripted25_late --seed 8 --losses [--episodes 40]
+    python -m benchmarks.grasper_probe --env Grasper3D-v5 --variant plain_scripted25_late --seed 8 --what-if [--episodes 40]
 
 ``--failures``: where and how the held-out episodes fail. Runs the deterministic policy on held-out resets
 seeded 10,000 + episode (the study's evaluation seeds only its first reset with 10,000 and lets the env's generator
@@ -49,21 +49,17 @@ from typing import Any, NamedTuple
 import gymnasium as gym
 import mujoco
 import numpy as np
-from convergence import (  # benchmarks/ is on sys.path
-    OUT,
-    add_run_arguments,
-    algorithm_class,
-    evaluation_env_kwargs,
-    job_folder,
-)
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import grasp_envs  # noqa: F401
-from grasp_envs import grasper3d_v4, grasper3d_v6
+from benchmarks.builders import add_run_arguments, algorithm_class, model_settings
+from benchmarks.protocol import EVAL_SEED
+from benchmarks.runs import OUT, job_folder
+from grasp_envs import grasper3d
 from grasp_envs.scripted import grasper3d_policy
 
 PROBE_SEED = 30_000
-HELD_OUT_SEED = 10_000  # benchmarks/convergence.py's EVAL_SEED: far from the training envs' seeds
+HELD_OUT_SEED = EVAL_SEED  # the study's held-out reset seed: far from the training envs' seeds
 SECTORS = (  # |bearing| ranges in degrees
     (0.0, 60.0, "in front (bearing within ±60°)"),
     (60.0, 120.0, "to the side (60-120°)"),
@@ -218,7 +214,7 @@ def success_parts(arm: Any) -> dict[str, bool]:
     """Each part of v4/v5's success test (``_is_success``): all true exactly when the task counts as solved."""
     contacts = arm.claw_cube_contacts()
     t, offset = arm.cube_off_claw_segment_in_forearm_frame()
-    tolerance = grasper3d_v4.BETWEEN_TOLERANCE
+    tolerance = grasper3d.BETWEEN_TOLERANCE
     return dict(
         zip(
             LOSS_PARTS,
@@ -313,7 +309,7 @@ WHAT_IF: dict[str, tuple[Callable[[mujoco.MjModel], None] | None, int, str | Non
 def turning_cube_xml(env_id: str, folder: Path, cube_rotation: str = "yaw") -> str:
     """The env's model with Grasper3D-v6's cube rotation, written to ``folder`` (for ``xml_file``)."""
     spec = mujoco.MjSpec.from_file(gym.make(env_id).unwrapped.fullpath)  # type: ignore[attr-defined]
-    grasper3d_v6.add_cube_rotation(spec, cube_rotation)
+    grasper3d.add_cube_rotation(spec, cube_rotation)
     path = folder / f"cube_{cube_rotation}.xml"
     path.write_text(spec.to_xml())
     return str(path)
@@ -359,13 +355,13 @@ def main() -> None:
     parser.add_argument("--failures", action="store_true", help="where and how the held-out episodes fail")
     parser.add_argument("--losses", action="store_true", help="how the lifted cubes are lost")
     parser.add_argument("--what-if", action="store_true", help="the losses under other physics settings")
-    parser.add_argument("--runs", type=Path, default=OUT, help="the runs' folder (benchmarks/convergence.py's --out)")
+    parser.add_argument("--runs", type=Path, default=OUT, help="the runs' folder (python -m benchmarks.convergence's --out)")
     args = parser.parse_args()
     folder = job_folder(args.runs, args.env, args.variant, args.seed)
     if not (folder / "model.zip").exists():
-        raise SystemExit(f"{folder}: no model.zip (run benchmarks/convergence.py first; checkpoints are not committed)")
+        raise SystemExit(f"{folder}: no model.zip (run python -m benchmarks.convergence first; checkpoints are not committed)")
     model = algorithm_class(args.variant).load(folder / "model.zip", device="cpu")
-    env_kwargs = evaluation_env_kwargs(args.env, args.variant)  # e.g. a variant's max_grip_speed
+    env_kwargs = model_settings(args.env, args.variant).env_kwargs  # e.g. a variant's max_grip_speed
     if args.failures:
         print(f"{args.env} {args.variant} seed {args.seed}")
         failures(model, args.env, folder, args.episodes, env_kwargs)

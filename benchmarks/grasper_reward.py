@@ -1,7 +1,7 @@
 """Does the Grasper3D-v0 default reward avoid the thesis reward's collapse? Long runs, resumable.
 
-    python benchmarks/grasper_reward.py --algo trpo --reward-mode staged --seed 0 --steps 3000000 [--chunk 250000]
-    python benchmarks/grasper_reward.py --env Grasper3D-v1 --algo trpo_plus --env-kwargs '{"reward_grasp_weight": 8}' \
+    python -m benchmarks.grasper_reward --algo trpo --reward-mode staged --seed 0 --steps 3000000 [--chunk 250000]
+    python -m benchmarks.grasper_reward --env Grasper3D-v1 --algo trpo_plus --env-kwargs '{"reward_grasp_weight": 8}' \
         --model-kwargs '{"cg_warm_start": true}' --tag g8 --seed 0
 
 Trains the anchor setting of issue #3 (sb3-contrib TRPO or TRPOPlus, 8 envs, VecNormalize, 100-100 tanh

@@ -1,6 +1,6 @@
 """Rollout-collection throughput with DummyVecEnv and SubprocVecEnv at 1, 2, 4, 8, 16 envs.
 
-    python benchmarks/scaling.py [--envs Grasper3D-v0 Reacher2D-v0] [--samples 8192] [--repeats 3]
+    python -m benchmarks.scaling [--envs Grasper3D-v0 Reacher2D-v0] [--samples 8192] [--repeats 3]
 
 Times TRPOPlus' ``collect_rollouts`` (policy inference, env stepping, buffer, callbacks) for ``--samples``
 env steps; prints env steps/s, the speed-up over one env in one process, and the ratio of the
@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 import torch as th
-from env_speed import time_env_step  # benchmarks/ is on sys.path when this file runs as a script
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
 import grasp_envs  # noqa: F401
+from benchmarks.env_speed import time_env_step
 from sb3_trpo_plus import TRPOPlus
 from sb3_trpo_plus.vec_env import ShardedSubprocVecEnv
 

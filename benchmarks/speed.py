@@ -1,6 +1,6 @@
 """Per-iteration time of TRPOPlus against sb3-contrib TRPO, split by phase, in one process.
 
-    python benchmarks/speed.py [--envs Reacher2D-v0 Grasper3D-v0 Hopper-v5] [--n-envs 8] [--n-steps 256]
+    python -m benchmarks.speed [--envs Reacher2D-v0 Grasper3D-v0 Hopper-v5] [--n-envs 8] [--n-steps 256]
                                [--repeats 7] [--out benchmarks/results/speed.json]
 
 Contenders (identical hyperparameters, n_envs and network): sb3-contrib TRPO, TRPOPlus with replay off,
@@ -26,12 +26,12 @@ import numpy as np
 import sb3_contrib
 import stable_baselines3
 import torch as th
-from env_speed import time_mj_step  # benchmarks/ is on sys.path when this file runs as a script
 from sb3_contrib import TRPO
 from stable_baselines3.common.env_util import make_vec_env
 from torch import nn
 
 import grasp_envs  # noqa: F401
+from benchmarks.env_speed import time_mj_step
 from sb3_trpo_plus import TRPOPlus
 
 PHASES = ("rollout", "recompute", "policy", "critic")
@@ -147,7 +147,7 @@ def main() -> None:
     th.set_num_threads(args.threads)
     contenders = ["sb3_contrib.TRPO", "TRPOPlus", "TRPOPlus(k=3)", "TRPOPlus(k=3,fisher/4)"]
     results: dict[str, Any] = {
-        "command": "python benchmarks/speed.py --envs "
+        "command": "python -m benchmarks.speed --envs "
         + " ".join(args.envs)
         + "".join(f" --{k.replace('_', '-')} {v}" for k, v in vars(args).items() if not isinstance(v, list)),
         "machine": {"cpu": platform.processor() or platform.machine(), "python": platform.python_version()},

@@ -1,7 +1,7 @@
 """How fast do sb3-contrib's TRPO and plain TRPOPlus drift apart when they start from the same seed?
 
-    python benchmarks/trpo_divergence.py --env Reacher2D-v1 --seeds 5 6 7 --updates 147
-    python benchmarks/trpo_divergence.py --env Reacher2D-v1 --study   # P(X > Y) of the study's runs
+    python -m benchmarks.trpo_divergence --env Reacher2D-v1 --seeds 5 6 7 --updates 147
+    python -m benchmarks.trpo_divergence --env Reacher2D-v1 --study   # P(X > Y) of the study's runs
 
 Both models are built with the zoo settings of the env (zoo_hyperparams/trpo.yml and trpo_plus.yml, the
 same values) and the same seed, so they start with the same weights and collect the same first rollout.
@@ -10,6 +10,8 @@ TRPOPlus does not make; here it starts at 0 (``zero_start_solver``), which remov
 difference except floating-point rounding (analytic Fisher products against double backpropagation).
 The script prints the relative distance ||θ_TRPO - θ_TRPOPlus|| / ||θ_TRPO|| of the policy parameters
 after each update. The convergence study's variant ``trpo_cg0`` trains with the same solver.
+
+The solver needs nothing but torch and sb3-contrib; the study is imported only where a function uses it.
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ def _flat_parameters(model: Any) -> np.ndarray:
 
 def _model(algo: str, env_id: str, seed: int, env: Any = None) -> Any:
     """A model with the zoo settings of ``algo`` on ``env_id`` (TRPOPlus: plain), on ``env`` or a new seeded env."""
-    from convergence import new_model  # benchmarks/ is on sys.path when this file runs as a script
+    from benchmarks.builders import new_model
 
     variant = "plain" if algo == "trpo_plus" else algo  # the study's plain TRPOPlus / sb3-contrib TRPO
     return new_model(env_id, variant, seed, env)
@@ -125,9 +127,10 @@ def divergence(env_id: str, seed: int, updates: int) -> list[float]:
 
 def study_pairs(env_id: str, pairs: Sequence[tuple[str, str]]) -> list[str]:
     """P(X > Y) on the success area over every seed both variants finished in the convergence study (rliable)."""
-    from convergence import OUT
-    from convergence_report import LABELS, complete_runs, interval_estimates, success_score
     from rliable import metrics
+
+    from benchmarks.report import LABELS, complete_runs, interval_estimates, success_score
+    from benchmarks.runs import OUT
 
     lines = [f"{env_id}: P(X > Y), success area, every seed both finished", "| X > Y | seeds | estimate [95 % CI] |"]
     lines.append("|---|---|---|")

@@ -1,9 +1,9 @@
 """How far does one policy update move the policy? The true KL of each update of PPO and TRPOPlus.
 
-    python benchmarks/update_kl.py --env Grasper3D-v4 --variants ppo_scripted25 warm_scripted25 --steps 300000
+    python -m benchmarks.update_kl --env Grasper3D-v4 --variants ppo_scripted25 warm_scripted25 --steps 300000
 
-Each variant of the convergence study (benchmarks/convergence.py: zoo settings plus the variant's
-switches and training-env kwargs) is trained from seed 0 for ``--steps``; around every call of
+Each variant of the convergence study (benchmarks/study.yml: zoo settings plus the variant's
+switches and training wrappers) is trained from seed 0 for ``--steps``; around every call of
 ``train()`` the script keeps the action distribution on the update's own batch before the update and
 compares it with the one after: mean KL(new ‖ old) over the batch's states (the direction of TRPO's
 trust region), and the mean policy std.
@@ -24,6 +24,9 @@ from typing import Any
 import numpy as np
 import torch as th
 
+from benchmarks.builders import new_model
+from benchmarks.study import VARIANTS
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -34,10 +37,8 @@ def policy_kl(p: th.distributions.Normal, q: th.distributions.Normal) -> float:
 
 def measure(env_id: str, variant: str, steps: int, seed: int = 0) -> dict[str, Any]:
     """Train one variant for ``steps`` and return the KL and std of each policy update."""
-    from convergence import VARIANTS, new_model
-
     th.set_num_threads(1)
-    algo = VARIANTS[variant][0]
+    algo = VARIANTS[variant].algo
     model = new_model(env_id, variant, seed)
     kls: list[float] = []
     stds: list[float] = []

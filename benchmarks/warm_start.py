@@ -4,7 +4,7 @@ For each variant and seed, trains TRPOPlus and records per update the CG residua
 `cg_max_steps` iterations, the cosine between warm start and solution, line-search success, and the
 final evaluation return. Results are cached per run in benchmarks/results/warm_start/ (resumable).
 
-    python benchmarks/warm_start.py --env Reacher2D-v0 --steps 100000 --seeds 0 1 2
+    python -m benchmarks.warm_start --env Reacher2D-v0 --steps 100000 --seeds 0 1 2
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
 """How much of the conjugate-gradient solution does the warm start carry? Every update against a zero start.
 
-    python benchmarks/warm_start_share.py --env Grasper3D-v6 --variant warm_scripted25_late --steps 200000
-    python benchmarks/warm_start_share.py --env Grasper3D-v6 --variant warm_scripted25_late --seed 0 --from-run --steps 100000
+    python -m benchmarks.warm_start_share --env Grasper3D-v6 --variant warm_scripted25_late --steps 200000
+    python -m benchmarks.warm_start_share --env Grasper3D-v6 --variant warm_scripted25_late --seed 0 --from-run --steps 100000
 
-A model of the convergence study's ``--variant`` (benchmarks/convergence.py: zoo settings, its switches and
-training-env kwargs) trains for ``--steps`` with the CG warm start on, either new (seed ``--seed``) or, with
+A model of the convergence study's ``--variant`` (benchmarks/study.yml: zoo settings, its switches and
+training wrappers) trains for ``--steps`` with the CG warm start on, either new (seed ``--seed``) or, with
 ``--from-run``, from the saved checkpoint of that variant's run (its weights and VecNormalize statistics; the first
 update after loading has no previous step). At every update that TRPOPlus warm-starts, CG is also solved from
 zero on the same gradient and Fisher products, and the script records:
@@ -32,6 +32,9 @@ import numpy as np
 import torch as th
 
 import sb3_trpo_plus.trpo_plus as trpo_plus_module
+from benchmarks.builders import add_run_arguments, algorithm_class, new_model, normalized_training_envs
+from benchmarks.runs import OUT, job_folder
+from benchmarks.study import VARIANTS
 from sb3_trpo_plus.natural_gradient import ConjugateGradientResult, conjugate_gradient
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,8 +67,6 @@ def compare_starts(
 
 
 def _model(env_id: str, variant: str, seed: int, from_run: bool) -> Any:
-    from convergence import OUT, algorithm_class, job_folder, new_model, training_envs  # benchmarks/ is on sys.path
-
     if not from_run:
         return new_model(env_id, variant, seed)
     from stable_baselines3.common.vec_env import VecNormalize
@@ -73,7 +74,7 @@ def _model(env_id: str, variant: str, seed: int, from_run: bool) -> Any:
     folder = job_folder(OUT, env_id, variant, seed)
     if not (folder / "model.zip").exists():
         raise FileNotFoundError(f"{folder} has no model.zip (checkpoints stay on the machine that trained them)")
-    env = training_envs(env_id, variant, seed)
+    env = normalized_training_envs(env_id, variant, seed)
     if isinstance(env, VecNormalize):
         env = VecNormalize.load(str(folder / "vecnormalize.pkl"), env.venv)
     return algorithm_class(variant).load(folder / "model.zip", env=env, device="cpu")
@@ -81,10 +82,8 @@ def _model(env_id: str, variant: str, seed: int, from_run: bool) -> Any:
 
 def measure(env_id: str, variant: str, seed: int, steps: int, from_run: bool, raw: bool) -> dict[str, Any]:
     """Train ``steps`` with the warm start on (``raw``: unscaled) and return the figures of every warm-started update."""
-    from convergence import VARIANTS  # benchmarks/ is on sys.path
-
-    if VARIANTS[variant][0] != "trpo_plus":
-        raise ValueError(f"variant {variant!r} is not trained by TRPOPlus (its algorithm: {VARIANTS[variant][0]})")
+    if VARIANTS[variant].algo != "trpo_plus":
+        raise ValueError(f"variant {variant!r} is not trained by TRPOPlus (its algorithm: {VARIANTS[variant].algo})")
     th.set_num_threads(1)
     model = _model(env_id, variant, seed, from_run)
     model.cg_warm_start, model.cg_warm_start_rescale = True, not raw
@@ -118,8 +117,6 @@ def summary(result: dict[str, Any]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    from convergence import add_run_arguments  # benchmarks/ is on sys.path when this file runs as a script
-
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     add_run_arguments(parser, "Grasper3D-v6", "warm_scripted25_late")
     parser.add_argument("--steps", type=int, default=200_000)

@@ -1,5 +1,8 @@
-"""The convergence study's tables agree with each other and with the envs (benchmarks/convergence.py)."""
+"""The convergence study (python -m benchmarks.convergence): its variants are study.yml's data, its tables agree with
+each other and with the envs, its jobs resume and branch, its protocol reads the target as documented."""
 
+import ast
+import json
 import sys
 from pathlib import Path
 
@@ -7,86 +10,211 @@ import gymnasium as gym
 import pytest
 
 import grasp_envs  # noqa: F401  (registers the envs)
+from grasp_envs.wrappers import ScriptedStarts
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import convergence  # benchmarks/convergence.py
-import convergence_report
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # benchmarks/ is a package beside the installed ones
+from benchmarks import builders, convergence, protocol, report, runner, runs, study  # noqa: E402
+from benchmarks.study import VARIANTS, StudyError, Variant  # noqa: E402
+
+SNAPSHOT = ROOT / "benchmarks" / "results" / "convergence" / "variants.json"
+# the Grasper's constructor options that the training wrapper ScriptedStarts replaced, as the snapshot names them
+SCRIPTED_START_KWARGS = {"probability": "scripted_start_prob", "steps": "scripted_start_steps",
+                         "hold_height": "scripted_start_hold_height"}  # fmt: skip
 
 
-def test_every_variant_has_a_label_and_every_env_a_target() -> None:
-    assert set(convergence_report.LABELS) == set(convergence.VARIANTS)
-    assert set(convergence.TARGETS) == set(convergence.BUDGETS)
-    assert set(convergence.STUDY_VARIANTS) <= set(convergence.VARIANTS)
+def _as_snapshot(variant: Variant) -> dict:
+    """``variant`` in the snapshot's form: its algorithm, every override (a schedule as data), the training envs'
+    scripted-start kwargs, and whether it trains with the multi-step class or sb3-contrib's CG started at 0."""
+    overrides = {
+        key: {"hold_then_shrink": vars(value)} if isinstance(value, study.HoldThenShrink) else value
+        for key, value in variant.hyperparameters.items()
+    }
+    if variant.env_kwargs is not None:
+        overrides["env_kwargs"] = variant.env_kwargs
+    train_env_kwargs = {}
+    for wrapper in variant.train_wrappers:
+        ((name, kwargs),) = wrapper.items()
+        assert name == "grasp_envs.wrappers.ScriptedStarts"
+        train_env_kwargs |= {SCRIPTED_START_KWARGS[key]: value for key, value in kwargs.items()}
+    return {
+        "label": variant.label,
+        "algo": variant.algo,
+        "overrides": json.loads(json.dumps(overrides)),
+        "train_env_kwargs": train_env_kwargs,
+        "multi_step": variant.algo_class == "benchmarks.multistep.MultiStepTRPOPlus",
+        "zero_cg_start": variant.zero_cg_start,
+    }
+
+
+def test_the_variants_are_those_the_committed_runs_were_trained_with() -> None:
+    """study.yml builds every variant, in the same order, with the settings of the snapshot taken from the Python
+    tables that trained the committed runs (variants.json: their scripted starts as the Grasper's former kwargs)."""
+    snapshot = json.loads(SNAPSHOT.read_text())
+    assert list(VARIANTS) == list(snapshot["variants"])
+    for name, variant in VARIANTS.items():
+        assert _as_snapshot(variant) == snapshot["variants"][name], name
+    assert snapshot["study_variants"] == study.STUDY_VARIANTS
+    for env_id, settings in snapshot["envs"].items():
+        assert vars(study.ENVS[env_id]) == settings
+
+
+def test_every_variant_loads_with_valid_keys_and_types() -> None:
+    for name, variant in VARIANTS.items():
+        assert variant.name == name and variant.label
+        assert variant.algo in study.ALGOS
+        assert isinstance(variant.hyperparameters, dict) and isinstance(variant.train_wrappers, list)
+        assert variant.env_kwargs is None or isinstance(variant.env_kwargs, dict)
+        assert isinstance(builders.algorithm_class(name), type)
+        for wrapper in variant.train_wrappers:
+            ((path, kwargs),) = wrapper.items()
+            assert path == "grasp_envs.wrappers.ScriptedStarts" and set(kwargs) <= set(SCRIPTED_START_KWARGS)
+    assert len(set(study.LABELS.values())) == len(VARIANTS)
+    assert set(study.TARGETS) == set(study.BUDGETS)
+    assert set(study.STUDY_VARIANTS) <= set(VARIANTS)
+    assert report.LABELS is study.LABELS
+
+
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        ({"label": "x", "algo": "trpo_plus", "gamma": 0.9}, "unknown keys"),
+        ({"algo": "trpo_plus"}, "needs a label"),
+        ({"label": "x", "algo": "a2c"}, "algo must be one of"),
+        ({"label": "x", "algo": "trpo_plus", "hyperparameters": {"env_kwargs": {}}}, "cannot set env_kwargs"),
+        ({"label": "x", "algo": "trpo_plus", "hyperparameters": {"target_kl": {"shrink": {}}}}, "schedule"),
+        ({"label": "x", "algo": "trpo_plus", "hyperparameters": {"target_kl": {"hold_then_shrink": {"a": 1}}}}, "schedule"),
+        ({"label": "x", "algo": "trpo_plus", "train_wrappers": [{"ScriptedStarts": {}}]}, "train_wrappers"),
+        ({"label": "x", "algo": "trpo_plus", "zero_cg_start": True}, "zero_cg_start"),
+    ],
+)
+def test_a_variant_with_a_wrong_key_or_value_is_refused(tmp_path: Path, entry: dict, message: str) -> None:
+    path = tmp_path / "study.yml"
+    path.write_text(json.dumps({"envs": {}, "study_variants": [], "variants": {"bad": entry}}))  # JSON is YAML
+    with pytest.raises(StudyError, match=message):
+        study.load_study(path)
+
+
+def test_a_target_kl_schedule_is_data() -> None:
+    shrink = VARIANTS["warm_scripted25_late_klshrink"].hyperparameters["target_kl"]
+    assert shrink == study.HoldThenShrink(0.01, 0.001, 0.4)
+    assert shrink(1.0) == shrink(0.6) == 0.01 and shrink(0.0) == pytest.approx(0.001)
+    assert shrink(0.3) == pytest.approx(0.01 + (0.001 - 0.01) * 0.3 / 0.6)
+
+
+def test_the_benchmarks_import_each_other_without_a_circle() -> None:
+    """Every import between benchmarks' modules (at the top or in a function) points one way, through the package."""
+    modules = {path.stem: path for path in (ROOT / "benchmarks").glob("*.py") if path.stem != "__init__"}
+    edges: dict[str, set[str]] = {name: set() for name in modules}
+    for name, path in modules.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("benchmarks."):
+                edges[name].add(node.module.split(".")[1])
+            elif isinstance(node, ast.ImportFrom) and node.module == "benchmarks":
+                edges[name] |= {alias.name for alias in node.names}
+            elif isinstance(node, ast.ImportFrom | ast.Import):  # no sibling imported as a top-level module
+                names = [node.module] if isinstance(node, ast.ImportFrom) else [alias.name for alias in node.names]
+                assert not set(names) & set(modules), f"{name} imports a sibling outside the package: {names}"
+    done: set[str] = set()
+
+    def visit(name: str, path: tuple[str, ...]) -> None:
+        assert name not in path, f"import circle: {' -> '.join((*path, name))}"
+        if name not in done:
+            for other in sorted(edges[name]):
+                visit(other, (*path, name))
+            done.add(name)
+
+    for name in modules:
+        visit(name, ())
 
 
 @pytest.mark.parametrize(
     ("suffix", "gamma", "env_id", "settings_until_then"),
     [
-        ("g099", 0.99, "Reacher2D-v1", "Reacher2D-v0"),  # before session 11, v1 used v0's settings
-        ("g0995", 0.995, "WallReacher3D-v0", "Reacher3D-v0"),  # before session 12, the thesis' 3D settings
+        ("g099", 0.99, "Reacher2D-v1", "Reacher2D-v0"),  # Reacher2D-v1's rows with Reacher2D-v0's settings
+        ("g0995", 0.995, "WallReacher3D-v0", "Reacher3D-v0"),  # WallReacher3D-v0's rows with the thesis' 3D settings
     ],
 )
-@pytest.mark.parametrize("variant", convergence.STUDY_VARIANTS)
+@pytest.mark.parametrize("name", study.STUDY_VARIANTS)
 def test_former_discount_variants_are_the_study_variants_with_the_old_discount(
-    variant: str, suffix: str, gamma: float, env_id: str, settings_until_then: str
+    name: str, suffix: str, gamma: float, env_id: str, settings_until_then: str
 ) -> None:
-    """An env's rows from before its YAML took gamma 0.98 differ from today's YAML in the discount only."""
-    algo, overrides = convergence.VARIANTS[variant]
-    assert convergence.VARIANTS[f"{variant}_{suffix}"] == (algo, {**overrides, "gamma": gamma})
-    old = convergence._hyperparameters(algo, env_id, convergence.VARIANTS[f"{variant}_{suffix}"][1])
-    assert old == convergence._hyperparameters(algo, settings_until_then, overrides)
-    assert convergence._hyperparameters(algo, env_id, overrides)["gamma"] == 0.98
+    """An env's rows from before its zoo entry took gamma 0.98 differ from today's settings in the discount only."""
+    variant, former = VARIANTS[name], VARIANTS[f"{name}_{suffix}"]
+    assert (former.algo, former.hyperparameters) == (variant.algo, {**variant.hyperparameters, "gamma": gamma})
+    assert study.hyperparameters(former, env_id) == study.hyperparameters(variant, settings_until_then)
+    assert study.hyperparameters(variant, env_id)["gamma"] == 0.98
 
 
-@pytest.mark.parametrize("variant", convergence.STUDY_VARIANTS)
-def test_scripted_start_variants_change_the_training_envs_only(variant: str) -> None:
+def _wrappers(env: gym.Env) -> list[gym.Env]:
+    """``env`` and every wrapper under it, outermost first, down to the unwrapped env (excluded)."""
+    found = []
+    while isinstance(env, gym.Wrapper):
+        found.append(env)
+        env = env.env
+    return found
+
+
+@pytest.mark.parametrize("name", study.STUDY_VARIANTS)
+def test_scripted_start_variants_change_the_training_envs_only(name: str) -> None:
     """<variant>_scripted25 trains like <variant> on envs whose resets follow the scripted grasp a quarter of the
-    time; its evaluation envs are the YAML's (no scripted starts)."""
-    scripted = f"{variant}_{convergence.SCRIPTED}"
-    algo, overrides = convergence.VARIANTS[variant]
-    assert convergence.VARIANTS[scripted] == (algo, overrides)
-    settings = convergence.model_settings(algo, "Grasper3D-v4", overrides)
-    assert convergence.model_settings(algo, "Grasper3D-v4", convergence.VARIANTS[scripted][1]) == settings
-    yaml_env_kwargs = settings[4]
-    assert "scripted_start_prob" not in (yaml_env_kwargs or {})
-    assert convergence.training_env_kwargs(scripted, yaml_env_kwargs)["scripted_start_prob"] == 0.25
-    assert "scripted_start_prob" not in convergence.training_env_kwargs(variant, yaml_env_kwargs)
+    time (the ScriptedStarts wrapper); the model and the env kwargs are <variant>'s."""
+    scripted = f"{name}_scripted25"
+    variant = VARIANTS[name]
+    assert (VARIANTS[scripted].algo, VARIANTS[scripted].hyperparameters) == (variant.algo, variant.hyperparameters)
+    assert builders.model_settings("Grasper3D-v4", scripted) == builders.model_settings("Grasper3D-v4", name)
+    assert VARIANTS[scripted].train_wrappers == [{"grasp_envs.wrappers.ScriptedStarts": {"probability": 0.25}}]
+    assert builders.train_wrapper_class(name) is None
+
+
+def test_training_envs_are_wrapped_and_evaluation_envs_are_not() -> None:
+    """run_job's training envs carry the variant's ScriptedStarts with study.yml's settings; its evaluation env does
+    not; the env kwargs (here v6's ready start pose) make both."""
+    name = "warm_scripted25_late_ready_cg25_g098"
+    training = builders.training_envs("Grasper3D-v6", name, seed=0)
+    for env in training.envs:
+        wrapper = next(w for w in _wrappers(env) if isinstance(w, ScriptedStarts))
+        assert (wrapper.probability, wrapper.steps, wrapper.hold_height) == (0.25, (50, 100), None)
+        assert env.unwrapped.spec.kwargs["start_pose"] == "ready"  # type: ignore[union-attr]
+    evaluation = builders.evaluation_env("Grasper3D-v6", name, seed=0)
+    assert not any(isinstance(w, ScriptedStarts) for w in _wrappers(evaluation.envs[0]))
+    assert evaluation.envs[0].unwrapped.spec.kwargs["start_pose"] == "ready"  # type: ignore[union-attr]
+    training.close()
+    evaluation.close()
 
 
 def test_evaluation_env_kwargs_are_the_variants_own_for_training_and_evaluation() -> None:
-    """A variant's env_kwargs (here v6's grip speed, or its cube's joint) make both its evaluation envs and, under the
-    scripted starts, its training envs; the diagnostic scripts read the evaluation kwargs from here."""
-    assert convergence.evaluation_env_kwargs("Grasper3D-v6", "warm_scripted25_late") == {}
-    for variant, kwargs in (
+    """A variant's env_kwargs (here v6's grip speed, or its cube's joint) make both its evaluation envs and its
+    training envs; the diagnostic scripts read them from model_settings."""
+    assert builders.model_settings("Grasper3D-v6", "warm_scripted25_late").env_kwargs == {}
+    for name, kwargs in (
         ("warm_scripted25_late_speed08", {"max_grip_speed": 0.8}),
         ("warm_scripted25_late_speed08_std05", {"max_grip_speed": 0.8}),
         ("plain_scripted25_late_freecube", {"cube_rotation": "free"}),
     ):
-        evaluation = convergence.evaluation_env_kwargs("Grasper3D-v6", variant)
-        assert evaluation == kwargs
-        training = convergence.training_env_kwargs(variant, evaluation)  # run_job's training envs
-        assert training == {**kwargs, **convergence.SCRIPTED25_LATE}
-        env = gym.make("Grasper3D-v6", **training)
+        assert builders.model_settings("Grasper3D-v6", name).env_kwargs == kwargs
+        env = gym.make("Grasper3D-v6", **kwargs)
         assert env.unwrapped.max_grip_speed == kwargs.get("max_grip_speed", 0.4)  # type: ignore[attr-defined]
         env.close()
 
 
-@pytest.mark.parametrize("variant", sorted(convergence.TRAIN_ENV_KWARGS))
-def test_training_env_kwargs_are_accepted_by_the_env(variant: str) -> None:
-    assert variant in convergence.VARIANTS
-    env = gym.make("Grasper3D-v4", **convergence.TRAIN_ENV_KWARGS[variant])
+@pytest.mark.parametrize("name", sorted(name for name, variant in VARIANTS.items() if variant.train_wrappers))
+def test_training_wrappers_are_accepted_by_the_env(name: str) -> None:
+    wrap = builders.train_wrapper_class(name)
+    assert wrap is not None
+    env = wrap(gym.make("Grasper3D-v4"))
     env.reset(seed=0)
     env.close()
 
 
 def test_export_skips_a_finished_run_without_its_checkpoint(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     env_id = "Reacher2D-v1"
-    folder = convergence.job_folder(tmp_path / "out", env_id, "warm", 3)
+    folder = runs.job_folder(tmp_path / "out", env_id, "warm", 3)
     folder.mkdir(parents=True)
-    budget = convergence.BUDGETS[env_id]
+    budget = study.BUDGETS[env_id]
     (folder / "progress.csv").write_text(f"timesteps,eval_success,eval_return\n{budget},0.9,10.0\n")
     agents = tmp_path / "agents"
-    convergence_report.export_agents(tmp_path / "out", [env_id], agents)
+    report.export_agents(tmp_path / "out", [env_id], agents)
     printed = capsys.readouterr().out
     assert "warm seed 3 (0.90)" in printed
     assert "no finished TRPOPlus run with a checkpoint" in printed
@@ -95,7 +223,8 @@ def test_export_skips_a_finished_run_without_its_checkpoint(tmp_path: Path, caps
 
 def test_zero_start_solver_starts_at_zero_and_draws_nothing() -> None:
     import torch as th
-    from trpo_divergence import zero_start_solver
+
+    from benchmarks.trpo_divergence import zero_start_solver
 
     matrix = th.tensor([[4.0, 1.0], [1.0, 3.0]])
     b = th.tensor([1.0, 2.0])
@@ -111,18 +240,19 @@ def test_zero_start_solver_starts_at_zero_and_draws_nothing() -> None:
 
 
 def test_zero_cg_start_variants_are_sb3_contrib_trpo() -> None:
-    assert convergence.ZERO_CG_START and all(convergence.VARIANTS[v][0] == "trpo" for v in convergence.ZERO_CG_START)
+    zero_start = [variant for variant in VARIANTS.values() if variant.zero_cg_start]
+    assert [variant.name for variant in zero_start] == ["trpo_cg0"] and zero_start[0].algo == "trpo"
 
 
 def test_complete_runs_are_in_the_order_of_the_seeds(tmp_path: Path) -> None:
     # the 10-seed tables take the first seeds of each variant: seed10 must not come before seed2
-    budget = convergence.BUDGETS["Reacher2D-v1"]
+    budget = study.BUDGETS["Reacher2D-v1"]
     for seed in (10, 2, 1):
-        folder = convergence.job_folder(tmp_path, "Reacher2D-v1", "plain", seed)
+        folder = runs.job_folder(tmp_path, "Reacher2D-v1", "plain", seed)
         folder.mkdir(parents=True)
         (folder / "progress.csv").write_text(f"timesteps,eval_success\n{budget},0.5\n")
-    (convergence.job_folder(tmp_path, "Reacher2D-v1", "plain", 3)).mkdir()  # unfinished: no CSV
-    assert list(convergence_report.complete_runs(tmp_path, "Reacher2D-v1", "plain")) == [1, 2, 10]
+    (runs.job_folder(tmp_path, "Reacher2D-v1", "plain", 3)).mkdir()  # unfinished: no CSV
+    assert list(report.complete_runs(tmp_path, "Reacher2D-v1", "plain")) == [1, 2, 10]
 
 
 def test_update_kl_is_per_state_and_matches_trpo_plus_line_search() -> None:
@@ -134,7 +264,8 @@ def test_update_kl_is_per_state_and_matches_trpo_plus_line_search() -> None:
     """
     import numpy as np
     import torch as th
-    import update_kl
+
+    from benchmarks import update_kl
 
     old = th.distributions.Normal(th.tensor([[0.0, 0.0], [0.0, 0.0]]), th.tensor([[1.0, 1.0], [1.0, 1.0]]))
     new = th.distributions.Normal(th.tensor([[1.0, 0.0], [0.0, 0.0]]), th.tensor([[1.0, 1.0], [1.0, 2.0]]))
@@ -157,8 +288,8 @@ def test_warm_start_share_against_hand_computed_cg() -> None:
     """
     import numpy as np
     import torch as th
-    import warm_start_share
 
+    from benchmarks import warm_start_share
     from sb3_trpo_plus.natural_gradient import conjugate_gradient
 
     def fvp(v: th.Tensor) -> th.Tensor:
@@ -182,9 +313,8 @@ def test_warm_start_share_against_hand_computed_cg() -> None:
 
 def test_warm_start_share_measures_every_warm_started_update_and_restores_the_solver() -> None:
     """Three updates of the plain variant with the warm start switched on: the last two are warm-started."""
-    import warm_start_share
-
     import sb3_trpo_plus.trpo_plus as trpo_plus_module
+    from benchmarks import warm_start_share
 
     solver = trpo_plus_module.conjugate_gradient
     result = warm_start_share.measure("Reacher2D-v1", "plain", seed=0, steps=3 * 2048, from_run=False, raw=False)
@@ -203,24 +333,22 @@ def test_a_branched_run_takes_its_variants_target_kl_schedule_over_the_budget(
 
     from sb3_trpo_plus import TRPOPlus
 
-    shrink = convergence.HoldThenShrink(0.01, 0.001, 0.5)
-    variants = {
-        "trunk": ("trpo_plus", dict(convergence.PLAIN)),
-        "branch": ("trpo_plus", {**convergence.PLAIN, "target_kl": shrink}),
-    }
-    monkeypatch.setattr(convergence, "VARIANTS", {**convergence.VARIANTS, **variants})
-    monkeypatch.setitem(convergence.BUDGETS, "Reacher2D-v1", 4 * 2048)  # one rollout of 2048 samples per chunk
-    convergence.run_job("Reacher2D-v1", "trunk", 0, 2 * 2048, tmp_path)
-    trunk = convergence.job_folder(tmp_path, "Reacher2D-v1", "trunk", 0)
-    branch = convergence.job_folder(tmp_path, "Reacher2D-v1", "branch", 0)
+    shrink = study.HoldThenShrink(0.01, 0.001, 0.5)
+    plain = VARIANTS["plain"].hyperparameters
+    monkeypatch.setitem(VARIANTS, "trunk", Variant("trunk", "trunk", "trpo_plus", dict(plain)))
+    monkeypatch.setitem(VARIANTS, "branch", Variant("branch", "branch", "trpo_plus", {**plain, "target_kl": shrink}))
+    monkeypatch.setitem(study.BUDGETS, "Reacher2D-v1", 4 * 2048)  # one rollout of 2048 samples per chunk
+    runner.run_job("Reacher2D-v1", "trunk", 0, 2 * 2048, tmp_path)
+    trunk = runs.job_folder(tmp_path, "Reacher2D-v1", "trunk", 0)
+    branch = runs.job_folder(tmp_path, "Reacher2D-v1", "branch", 0)
     shutil.copytree(trunk, branch)
-    convergence.run_job("Reacher2D-v1", "branch", 0, 4 * 2048, tmp_path)
+    runner.run_job("Reacher2D-v1", "branch", 0, 4 * 2048, tmp_path)
     trunk_model = TRPOPlus.load(trunk / "model.zip")
     branch_model = TRPOPlus.load(branch / "model.zip")
     assert trunk_model.target_kl == 0.01 and trunk_model._current_progress_remaining == pytest.approx(0.5)
     assert branch_model.target_kl == shrink and branch_model._current_progress_remaining == pytest.approx(0.0)
     assert branch_model.current_target_kl == pytest.approx(0.001)  # the last update comes after the last rollout
-    rows = convergence.read_progress(branch)
+    rows = runs.read_progress(branch)
     assert [row["timesteps"] for row in rows] == [2048, 4096, 6144, 8192]
     assert all(row["kl_overshoot"] <= 1.0 for row in rows)
 
@@ -233,26 +361,25 @@ def test_a_branched_run_takes_its_variants_batch_and_replay_memory(tmp_path: Pat
 
     from sb3_trpo_plus import TRPOPlus
 
-    variants = {
-        "trunk": ("trpo_plus", dict(convergence.PLAIN)),
-        "branch": ("trpo_plus", {**convergence.PLAIN, "n_steps": 512, "replay_memory": 2}),
-    }
-    monkeypatch.setattr(convergence, "VARIANTS", {**convergence.VARIANTS, **variants})
-    monkeypatch.setitem(convergence.BUDGETS, "Reacher2D-v1", 4 * 2048)  # a short study budget for the progress
+    plain = VARIANTS["plain"].hyperparameters
+    monkeypatch.setitem(VARIANTS, "trunk", Variant("trunk", "trunk", "trpo_plus", dict(plain)))
+    branch_settings = {**plain, "n_steps": 512, "replay_memory": 2}
+    monkeypatch.setitem(VARIANTS, "branch", Variant("branch", "branch", "trpo_plus", branch_settings))
+    monkeypatch.setitem(study.BUDGETS, "Reacher2D-v1", 4 * 2048)  # a short study budget for the progress
     temporary = tmp_path / "tempdir"
     temporary.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(temporary))  # where SB3's default logger makes its folders
-    convergence.run_job("Reacher2D-v1", "trunk", 0, 2048, tmp_path)  # 8 envs x 256 steps; a chunk is steps // 25
-    trunk = convergence.job_folder(tmp_path, "Reacher2D-v1", "trunk", 0)
-    branch = convergence.job_folder(tmp_path, "Reacher2D-v1", "branch", 0)
+    runner.run_job("Reacher2D-v1", "trunk", 0, 2048, tmp_path)  # 8 envs x 256 steps; a chunk is steps // 25
+    trunk = runs.job_folder(tmp_path, "Reacher2D-v1", "trunk", 0)
+    branch = runs.job_folder(tmp_path, "Reacher2D-v1", "branch", 0)
     shutil.copytree(trunk, branch)
-    convergence.run_job("Reacher2D-v1", "branch", 0, 2048 + 2 * 4096, tmp_path)  # two rollouts of 8 x 512
+    runner.run_job("Reacher2D-v1", "branch", 0, 2048 + 2 * 4096, tmp_path)  # two rollouts of 8 x 512
     trunk_model = TRPOPlus.load(trunk / "model.zip")
     branch_model = TRPOPlus.load(branch / "model.zip")
     assert (trunk_model.n_steps, trunk_model.replay_memory) == (256, 0)
     assert (branch_model.n_steps, branch_model.replay_memory) == (512, 2)
     assert len(branch_model.rollout_memory) == 2
-    assert [row["timesteps"] for row in convergence.read_progress(branch)] == [2048, 6144, 10240]
+    assert [row["timesteps"] for row in runs.read_progress(branch)] == [2048, 6144, 10240]
     assert not list(temporary.glob("SB3-*"))
 
 
@@ -267,43 +394,41 @@ def test_kept_checkpoints_are_the_study_as_it_stood_after_each_chunk(
 
     from sb3_trpo_plus import TRPOPlus
 
-    monkeypatch.setitem(convergence.BUDGETS, "Reacher2D-v1", 4 * 2048)
+    monkeypatch.setitem(study.BUDGETS, "Reacher2D-v1", 4 * 2048)
     out, kept = tmp_path / "runs", tmp_path / "kept"
     convergence.main(["job", "--env", "Reacher2D-v1", "--variant", "plain", "--seed", "0", "--steps", "4096",
                       "--out", str(out), "--keep-checkpoints", str(kept)])  # fmt: skip
-    job = convergence.job_folder(out, "Reacher2D-v1", "plain", 0)
-    rows, lines = convergence.read_progress(job), (job / "progress.csv").read_text().splitlines()
+    job = runs.job_folder(out, "Reacher2D-v1", "plain", 0)
+    rows, lines = runs.read_progress(job), (job / "progress.csv").read_text().splitlines()
     assert sorted(int(p.name) for p in kept.iterdir()) == [2048, 4096]
     for count, row in enumerate(rows, start=1):
-        folder = convergence.job_folder(kept / str(int(row["timesteps"])), "Reacher2D-v1", "plain", 0)
+        folder = runs.job_folder(kept / str(int(row["timesteps"])), "Reacher2D-v1", "plain", 0)
         assert sorted(p.name for p in folder.iterdir()) == ["model.zip", "progress.csv", "vecnormalize.pkl"]
         assert (folder / "progress.csv").read_text().splitlines() == lines[: count + 1]  # the header and its rows
-        env = make_vec_env("Reacher2D-v1", n_envs=1, seed=convergence.EVAL_SEED)
+        env = make_vec_env("Reacher2D-v1", n_envs=1, seed=protocol.EVAL_SEED)
         env = VecNormalize.load(str(folder / "vecnormalize.pkl"), env)
         env.training, env.norm_reward = False, False
         model = TRPOPlus.load(folder / "model.zip", device="cpu")
-        eval_return, eval_success = convergence.evaluate(model, env, convergence.EVAL_EPISODES)
+        eval_return, eval_success = protocol.evaluate(model, env, protocol.EVAL_EPISODES)
         assert (round(eval_return, 4), eval_success) == (row["eval_return"], row["eval_success"])
     assert not list(kept.rglob("*.tmp"))
     # evaluated again the study's way, on its own episodes: the rows' evaluations, once, whatever the reruns
     again = ["reevaluate", "--kept", str(kept), "--out", str(out), "--envs", "Reacher2D-v1", "--variants", "plain",
-             "--seeds", "0", "--episodes", str(convergence.EVAL_EPISODES), "--reset-seed", str(convergence.EVAL_SEED),
+             "--seeds", "0", "--episodes", str(protocol.EVAL_EPISODES), "--reset-seed", str(protocol.EVAL_SEED),
              "--jobs", "1"]  # fmt: skip
     convergence.main(again)
     convergence.main([*again[:-1], "2"])
     assert "0 checkpoints to evaluate" in capsys.readouterr().out
-    reevaluation = convergence.read_reevaluation(out, "Reacher2D-v1", "plain", 0)
+    reevaluation = runs.read_reevaluation(out, "Reacher2D-v1", "plain", 0)
     assert [(r["timesteps"], r["eval_success"], r["eval_return"]) for r in reevaluation] == [
         (row["timesteps"], row["eval_success"], row["eval_return"]) for row in rows
     ]
     convergence.main([*again, "--after", "2048", "--episodes", "3", "--reset-seed", "7", "--jobs", "2"])  # the 4096 one
-    assert [(r["timesteps"], r["episodes"]) for r in convergence.read_reevaluation(out, "Reacher2D-v1", "plain", 0)] == [
+    assert [(r["timesteps"], r["episodes"]) for r in runs.read_reevaluation(out, "Reacher2D-v1", "plain", 0)] == [
         (2048, 20), (4096, 3), (4096, 20)
     ]  # fmt: skip
     convergence.main([*again, "--timesteps", "2048", "--episodes", "2"])
-    assert [r["timesteps"] for r in convergence.read_reevaluation(out, "Reacher2D-v1", "plain", 0) if r["episodes"] == 2] == [
-        2048
-    ]
+    assert [r["timesteps"] for r in runs.read_reevaluation(out, "Reacher2D-v1", "plain", 0) if r["episodes"] == 2] == [2048]
     with pytest.raises(FileNotFoundError, match=r"seed 0 at \[6144\]"):
         convergence.main([*again, "--timesteps", "2048", "6144"])
     with pytest.raises(FileNotFoundError, match="no checkpoint of Reacher2D-v1 plain seed 1"):
@@ -321,33 +446,33 @@ def test_confirm_runs_the_declared_reading_on_the_checkpoints_it_leaves_undecide
     """``reevaluate --confirm`` (protocol shrunk to 2 episodes, then 3 from each of two seeds; target 0.5): a checkpoint
     already at the target on the first evaluation is not confirmed, one below it is, on both seeds; the verdict is
     ``seed_verdict`` of the rows written; a rerun evaluates nothing; a hand-picked count is refused."""
-    monkeypatch.setattr(convergence, "REEVALUATION_EPISODES", 2)
-    monkeypatch.setattr(convergence, "CONFIRMATION_EPISODES", 3)
-    monkeypatch.setattr(convergence, "CONFIRMATION_SEEDS", (7, 8))
-    monkeypatch.setitem(convergence.TARGETS, "Reacher2D-v1", 0.5)
+    monkeypatch.setattr(protocol, "REEVALUATION_EPISODES", 2)
+    monkeypatch.setattr(protocol, "CONFIRMATION_EPISODES", 3)
+    monkeypatch.setattr(protocol, "CONFIRMATION_SEEDS", (7, 8))
+    monkeypatch.setitem(study.TARGETS, "Reacher2D-v1", 0.5)
     out, kept = tmp_path / "runs", tmp_path / "kept"
     convergence.main(["job", "--env", "Reacher2D-v1", "--variant", "plain", "--seed", "0", "--steps", "4096",
                       "--out", str(out), "--keep-checkpoints", str(kept)])  # fmt: skip
-    at_target = {"timesteps": 2048, "episodes": 2, "reset_seed": convergence.REEVALUATION_SEED, "eval_success": 0.5}
-    convergence._write_reevaluation(out, "Reacher2D-v1", "plain", 0, {**at_target, "eval_return": 0.0})
+    at_target = {"timesteps": 2048, "episodes": 2, "reset_seed": protocol.REEVALUATION_SEED, "eval_success": 0.5}
+    runs.write_reevaluation(out, "Reacher2D-v1", "plain", 0, {**at_target, "eval_return": 0.0})
     command = ["reevaluate", "--kept", str(kept), "--out", str(out), "--envs", "Reacher2D-v1", "--variants", "plain",
                "--seeds", "0", "--jobs", "1", "--confirm"]  # fmt: skip
     convergence.main(command)
-    rows = convergence.read_reevaluation(out, "Reacher2D-v1", "plain", 0)
+    rows = runs.read_reevaluation(out, "Reacher2D-v1", "plain", 0)
     first = [r for r in rows if r["timesteps"] == 4096 and r["episodes"] == 2]
     assert len(first) == 1 and first[0]["eval_success"] < 0.5  # a 4096-step Reacher misses the target: confirmed
     assert [(r["timesteps"], r["episodes"], r["reset_seed"]) for r in rows] == [
         (2048, 2, 20_000), (4096, 2, 20_000), (4096, 3, 7), (4096, 3, 8)
     ]  # fmt: skip
     successes = sum(round(r["eval_success"] * r["episodes"]) for r in rows if r["timesteps"] == 4096)
-    assert convergence.pooled_success(convergence.at(rows, 4096)) == successes / 8
+    assert protocol.pooled_success(protocol.at(rows, 4096)) == successes / 8
     verdict = "pass" if successes >= 4 else "FAIL"
     line = f"Reacher2D-v1 plain seed0: {verdict} (2 checkpoints past 0; below 0.5 on 2 episodes: 1, on 8: 4096: "
     assert line in capsys.readouterr().out
     convergence.main(command)
     printed = capsys.readouterr().out
     assert "0 checkpoints to evaluate" in printed and line in printed  # confirmed earlier: still counted below
-    assert convergence.read_reevaluation(out, "Reacher2D-v1", "plain", 0) == rows
+    assert runs.read_reevaluation(out, "Reacher2D-v1", "plain", 0) == rows
     with pytest.raises(SystemExit):
         convergence.main([*command, "--episodes", "5"])
     assert "drop --episodes" in capsys.readouterr().err
@@ -355,9 +480,9 @@ def test_confirm_runs_the_declared_reading_on_the_checkpoints_it_leaves_undecide
 
 def test_runs_with_a_schedule_are_not_shipped_as_agents() -> None:
     """``agents`` ships a run whose settings config.yml can hold: env kwargs (enjoy applies them), not a schedule."""
-    assert convergence_report.not_an_agent("warm_scripted25_late") is None
-    assert convergence_report.not_an_agent("warm_scripted25_late_ready") is None
-    assert "schedule" in str(convergence_report.not_an_agent("warm_scripted25_late_klshrink"))
+    assert report.not_an_agent("warm_scripted25_late") is None
+    assert report.not_an_agent("warm_scripted25_late_ready") is None
+    assert "schedule" in str(report.not_an_agent("warm_scripted25_late_klshrink"))
 
 
 def _rows(*evaluations: tuple[int, float]) -> list[dict[str, float]]:
@@ -368,7 +493,7 @@ def test_target_table_counts_the_seeds_that_reach_the_target_and_hold_it(tmp_pat
     """The Grasper's target, by hand: within 2M, then at or above it at every evaluation after 2M, and the same count
     on the re-evaluations of the report's protocol (100 episodes, reset seed 20,000) only."""
     variant = "warm_scripted25_late_ready_cg25_g098"
-    runs = {
+    finished = {
         "plain": {},  # no finished run: no row
         variant: {
             0: _rows((1_000_000, 0.5), (2_000_000, 0.9), (3_500_000, 0.95), (5_000_000, 1.0)),  # meets both halves
@@ -385,17 +510,17 @@ def test_target_table_counts_the_seeds_that_reach_the_target_and_hold_it(tmp_pat
         (2, 3_500_000, 100, 20_000, 0.90),
         (2, 5_000_000, 100, 20_000, 0.97),
     ]:
-        convergence.job_folder(tmp_path, "Grasper3D-v6", variant, seed).mkdir(parents=True, exist_ok=True)
+        runs.job_folder(tmp_path, "Grasper3D-v6", variant, seed).mkdir(parents=True, exist_ok=True)
         row = {"timesteps": timesteps, "episodes": episodes, "reset_seed": reset_seed, "eval_success": success}
-        convergence._write_reevaluation(tmp_path, "Grasper3D-v6", variant, seed, {**row, "eval_return": 0.0})
-    lines = convergence_report.target_table("Grasper3D-v6", runs, tmp_path)
+        runs.write_reevaluation(tmp_path, "Grasper3D-v6", variant, seed, {**row, "eval_return": 0.0})
+    lines = report.target_table("Grasper3D-v6", finished, tmp_path)
     assert lines[0] == (
         "| variant | seeds | ≥ 90% within 2M | ≥ 90% at every evaluation after 2M | both | evaluations after 2M ≥ 90% "
         "| on 100 episodes: checkpoints after 2M ≥ 90% "
         "| every checkpoint after 2M ≥ 90% on 100 episodes, or on 500 where those fall below |"
     )
     assert lines[1] == "|---|---|---|---|---|---|---|---|"
-    label = convergence_report.LABELS[variant]
+    label = report.LABELS[variant]
     assert lines[2:] == [
         f"| {label} | 3 | 2 of 3 (0, 1) | 2 of 3 (0, 2) | 1 of 3 (0) | 5 of 6 | 3 of 4 (seeds 1, 2; every one: 1 of 2 (2)) "
         "| 1 of 3 (2) pass; fail: 1; not yet decided: 0 |"
@@ -409,7 +534,7 @@ def test_checkpoint_verdict_reads_100_episodes_then_500() -> None:
     def rows(*runs: tuple[int, int, float]) -> list[dict[str, float]]:
         return [{"timesteps": 2_800_000, "episodes": e, "reset_seed": r, "eval_success": s} for e, r, s in runs]
 
-    verdict = convergence.checkpoint_verdict
+    verdict = protocol.checkpoint_verdict
     assert verdict(rows((100, 20_000, 0.90)), 0.9) is True
     assert verdict(rows((100, 20_000, 0.88), (200, 30_000, 0.955), (200, 40_000, 0.935)), 0.9) is True  # 466 of 500
     assert verdict(rows((100, 20_000, 0.88), (200, 30_000, 0.90), (200, 40_000, 0.90)), 0.9) is False  # 448 of 500
@@ -422,11 +547,11 @@ def test_checkpoint_verdict_reads_100_episodes_then_500() -> None:
 
 def test_target_table_counts_a_budgets_last_evaluation_past_it_as_within() -> None:
     """A chunk ends on a whole rollout: Reacher2D-v1's 300k budget ends at 301,056 steps, and that evaluation counts."""
-    runs = {"plain": {0: _rows((294_912, 0.85), (301_056, 0.95)), 1: _rows((294_912, 0.85), (301_056, 0.85))}}
-    assert convergence_report.target_table("Reacher2D-v1", runs, Path("/nonexistent")) == [
+    finished = {"plain": {0: _rows((294_912, 0.85), (301_056, 0.95)), 1: _rows((294_912, 0.85), (301_056, 0.85))}}
+    assert report.target_table("Reacher2D-v1", finished, Path("/nonexistent")) == [
         "| variant | seeds | ≥ 90% within 300k |",
         "|---|---|---|",
         "| TRPOPlus plain | 2 | 1 of 2 (0) |",
     ]
-    assert convergence_report._evaluations_within(_rows((1, 0.0), (2, 0.0), (3, 0.0)), 2) == 2  # one at the mark
-    assert convergence_report._evaluations_within(_rows((1, 0.0), (3, 0.0), (4, 0.0)), 2) == 2  # the first past it
+    assert report._evaluations_within(_rows((1, 0.0), (2, 0.0), (3, 0.0)), 2) == 2  # one at the mark
+    assert report._evaluations_within(_rows((1, 0.0), (3, 0.0), (4, 0.0)), 2) == 2  # the first past it

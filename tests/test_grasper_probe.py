@@ -1,4 +1,4 @@
-"""benchmarks/grasper_probe.py: how an episode is classified and counted (--failures), how a loss is named
+"""python -m benchmarks.grasper_probe: how an episode is classified and counted (--failures), how a loss is named
 (--losses), and the turning cube of --what-if."""
 
 import sys
@@ -9,8 +9,8 @@ import numpy as np
 
 import grasp_envs  # noqa: F401  (registers the envs)
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from grasper_probe import (  # benchmarks/grasper_probe.py
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/ is a package beside the installed ones
+from benchmarks.grasper_probe import (
     LOSS_PARTS,
     Episode,
     failure_table,

@@ -1,7 +1,11 @@
-"""Figures, tables, rliable aggregates and trained-agent export for benchmarks/convergence.py.
+"""The convergence study's report: figures, tables, rliable aggregates, and the export of trained agents.
 
-Reads only the committed per-run CSVs (benchmarks/results/convergence/<env>/<variant>/seed<k>/progress.csv),
-so the report can be rebuilt on any machine; ``export_agents`` also needs the runs' saved models.
+    python -m benchmarks.convergence report     # into docs/results.md and docs/images/
+    python -m benchmarks.convergence agents     # the best TRPOPlus run of each env into trained_agents/
+
+Reads only the committed per-run CSVs (benchmarks/results/convergence/<env>/<variant>/seed<k>/progress.csv and
+reevaluation.csv), so the report can be rebuilt on any machine; ``export_agents`` also needs the runs' saved models.
+Each variant is named by its study.yml label.
 """
 
 from __future__ import annotations
@@ -14,114 +18,33 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from convergence import (
-    BUDGETS,
+
+from benchmarks.protocol import (
     CONFIRMATION_EPISODES,
     CONFIRMATION_SEEDS,
     EVAL_EPISODES,
-    FORMER_DISCOUNTS,
-    HOLD_HEIGHT,
     REEVALUATION_EPISODES,
     REEVALUATION_SEED,
+    reevaluations,
+    seed_verdict,
+)
+from benchmarks.runs import job_folder, read_progress, read_reevaluation
+from benchmarks.study import (
+    BUDGETS,
+    LABELS,
     ROOT,
-    SCRIPTED,
     STUDY_VARIANTS,
     TARGET_HELD,
     TARGET_WITHIN,
     TARGETS,
     VARIANTS,
-    job_folder,
-    read_progress,
-    read_reevaluation,
-    reevaluations,
-    seed_verdict,
+    hyperparameters,
 )
 
 BEGIN, END = "<!-- convergence-report:begin -->", "<!-- convergence-report:end -->"
-LABELS = {
-    "plain": "TRPOPlus plain",
-    "replay": "TRPOPlus + replay (k=3)",
-    "warm": "TRPOPlus + warm start",
-    "both": "TRPOPlus + both",
-    "trpo": "sb3-contrib TRPO",
-    "ppo": "SB3 PPO",
-    "trpo_cg0": "sb3-contrib TRPO, CG started at 0, gamma 0.99",
-    "replay_cg25": "TRPOPlus + replay, 25 CG iterations, gamma 0.99",
-    "both_cg5": "TRPOPlus + both, 5 CG iterations, gamma 0.99",
-    "warm_kl02": "TRPOPlus + warm start, target_kl 0.02, gamma 0.99",
-    "warm_n128": "TRPOPlus + warm start, n_steps 128, gamma 0.99",
-    "warm_std06": "TRPOPlus + warm start, initial std 0.61, gamma 0.99",
-    "warm_std037": "TRPOPlus + warm start, initial std 0.37, gamma 0.99",
-    "warm_lam098": "TRPOPlus + warm start, GAE lambda 0.98, gamma 0.99",
-    "warm_lam090": "TRPOPlus + warm start, GAE lambda 0.90, gamma 0.99",
-    "warm_vf20": "TRPOPlus + warm start, 20 critic epochs, gamma 0.99",
-    "warm_scripted50": "TRPOPlus + warm start, 50 % scripted starts",
-    "warm_scripted25_kl03": "TRPOPlus + warm start, 25 % scripted starts, target_kl 0.03",
-    "warm_scripted25_n500": "TRPOPlus + warm start, 25 % scripted starts, 5,000 samples per update",
-    "warm_scripted25_std06": "TRPOPlus + warm start, 25 % scripted starts, initial std 0.61",
-    "warm_scripted25_g098": "TRPOPlus + warm start, 25 % scripted starts, gamma 0.98",
-    "plain_scripted25_g098": "TRPOPlus plain, 25 % scripted starts, gamma 0.98",
-    "plain_scripted25_cg25": "TRPOPlus plain, 25 % scripted starts, 25 CG iterations",
-    "plain_scripted25_n500": "TRPOPlus plain, 25 % scripted starts, 5,000 samples per update",
-    "plain_scripted25_ms3": "TRPOPlus plain, 25 % scripted starts, 3 natural-gradient steps per update",
-    "plain_scripted25_kl005": "TRPOPlus plain, 25 % scripted starts, target_kl 0.005",
-    "plain_scripted25_late_std06": "TRPOPlus plain, 25 % scripted starts 50-99 steps along, initial std 0.61",
-    "plain_scripted25_late_net256": "TRPOPlus plain, 25 % scripted starts 50-99 steps along, 256 x 256 policy",
-    "plain_scripted50_late": "TRPOPlus plain, 50 % scripted starts 50-99 steps along the grasp",
-    "plain_scripted25_late_freecube": "TRPOPlus plain, 25 % scripted starts 50-99 steps along, a cube that can tip over",
-    "warm_scripted25_late_speed08": "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, grip at 0.8 m/s",
-    "warm_scripted25_late_speed08_std05": (
-        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, grip at 0.8 m/s, initial std 0.5"
-    ),
-    "warm_scripted25_late_ready": (
-        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, the arm starting in a ready pose"
-    ),
-    "warm_scripted25_late_klshrink": (
-        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, target_kl 0.01 to 2M, then down to 0.001 at 5M"
-    ),
-    "warm_scripted25_late_ready_klshrink": (
-        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, ready pose, target_kl down to 0.001 from 2M to 5M"
-    ),
-    "warm_scripted25_late_ready_n3000": (
-        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, ready pose, 30,000 samples per update from 2M"
-    ),
-    "warm_scripted25_late_ready_replay3": (
-        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, ready pose, replay memory (k=3) from 2M"
-    ),
-    "warm_scripted25_late_ready_cg25": (
-        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, ready pose, 25 CG iterations"
-    ),
-    "warm_scripted25_late_ready_cg25_n3000": (
-        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, ready pose, 25 CG iterations,"
-        " 30,000 samples per update from 2M"
-    ),
-    "warm_scripted25_late_ready_cg25_g098": (
-        "TRPOPlus + warm start, 25 % scripted starts 50-99 steps along, ready pose, 25 CG iterations, gamma 0.98"
-    ),
-    "warm_scripted25_vf3e4": "TRPOPlus + warm start, 25 % scripted starts, critic step size 3e-4",
-    "ppo_scripted25_e1": "SB3 PPO, 25 % scripted starts, 1 epoch per batch",
-    "warm_sde": "TRPOPlus + warm start, gSDE",
-}
-LABELS.update(
-    {
-        f"{name}_{suffix}": f"{LABELS[name]}, gamma {gamma}"
-        for suffix, gamma in FORMER_DISCOUNTS.items()
-        for name in STUDY_VARIANTS
-    }
-)
-LABELS.update({f"{name}_{SCRIPTED}": f"{LABELS[name]}, 25 % scripted starts" for name in STUDY_VARIANTS})
-LABELS.update(
-    {f"{name}_{SCRIPTED}_late": f"{LABELS[name]}, 25 % scripted starts 50-99 steps along the grasp" for name in STUDY_VARIANTS}
-)
-LABELS.update(
-    {
-        f"{name}_{SCRIPTED}_late_hold": f"{LABELS[name]}, 25 % late scripted starts, the cube held {HOLD_HEIGHT:.2f} m up"
-        for name in STUDY_VARIANTS
-    }
-)
 # why does the combination hurt? each diagnosis variant against the variant it changes (docs/results.md)
 # and is plain TRPOPlus better than sb3-contrib TRPO, or than the same algorithm with another random stream?
-# (all of these ran on Reacher2D-v1 with gamma 0.99); and the discount the YAML took in session 11 against 0.99
+# (all of these ran on Reacher2D-v1 with gamma 0.99); and the zoo's discount 0.98 against 0.99
 DIAGNOSIS_PAIRS = [
     ("both_cg5", "both_g099"), ("replay_g099", "replay_cg25"), ("both_cg5", "replay_g099"), ("both_cg5", "warm_g099"),
     ("plain_g099", "trpo_cg0"), ("trpo_cg0", "trpo_g099"), ("warm", "warm_g099"), ("warm", "ppo_g099"),
@@ -245,7 +168,7 @@ def target_table(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]
     """The issue's target, seed by seed: which seeds reach it within ``TARGET_WITHIN`` and, on the envs of
     ``TARGET_HELD``, stay at or above it at every evaluation after that (both: the target met), how many of those
     evaluations are, and how many of the checkpoints after it are on ``REEVALUATION_EPISODES`` episodes where
-    ``convergence.py reevaluate`` evaluated them again (its default reset seed)."""
+    ``python -m benchmarks.convergence reevaluate`` evaluated them again (its default reset seed)."""
     target, within = TARGETS[env_id], TARGET_WITHIN[env_id]
     held = env_id in TARGET_HELD
     header = f"| variant | seeds | ≥ {target:.0%} within {_steps(within)} |"
@@ -475,33 +398,32 @@ def agents_section(manifest_path: Path) -> list[str]:
 
 # ---------------------------------------------------------------------------------------------- agents
 def evaluate_agent(folder: Path, env_id: str, episodes: int = AGENT_EPISODES, seed: int = AGENT_SEED) -> dict[str, float]:
-    """Deterministic success rate and return of an exported agent over ``episodes`` seeded episodes."""
-    from sb3_trpo_plus.cli import _load_trained, evaluate
+    """Deterministic success rate and mean return of an exported agent over ``episodes`` episodes, the env seeded once
+    with ``seed`` (as the study evaluates)."""
+    from sb3_trpo_plus.cli import _load_trained
+    from sb3_trpo_plus.evaluation import evaluate_agent as evaluate
 
     model, env, _ = _load_trained("trpo_plus", env_id, str(folder), 1, False, seed, False)
-    result = evaluate(model, env, episodes)
+    result = evaluate(model, env, episodes, seed, seed_every_episode=False)
     env.close()
-    return result
+    return {"success_rate": result.success_rate, "mean_reward": result.mean_return}
 
 
 def not_an_agent(variant: str) -> str | None:
     """Why ``variant``'s runs cannot be shipped as an agent (``config.yml`` holds plain values), or None. A variant's
     env_kwargs go into ``config.yml``, which ``trpo-plus enjoy`` and the agent test make the env with."""
-    overrides = VARIANTS[variant][1]
-    if callable(overrides.get("target_kl")):
+    if callable(VARIANTS[variant].hyperparameters.get("target_kl")):
         return "a target_kl schedule, which config.yml cannot hold"
     return None
 
 
 def export_agents(out: Path, envs: list[str], folder: Path) -> None:
     """Copy the best finished TRPOPlus run of each env into rl-zoo's layout under ``folder``; record its success."""
-    from convergence import _hyperparameters
-
     manifest_path = folder / "agents.json"
     manifest: dict[str, Any] = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
     for env_id in envs:
         candidates, without_checkpoint, not_agents = [], [], []
-        for variant in (v for v, (algo, _) in VARIANTS.items() if algo == "trpo_plus"):
+        for variant in (name for name, v in VARIANTS.items() if v.algo == "trpo_plus"):
             runs = complete_runs(out, env_id, variant)
             reason = not_an_agent(variant)
             if runs and reason:
@@ -526,9 +448,9 @@ def export_agents(out: Path, envs: list[str], folder: Path) -> None:
         from sb3_trpo_plus import TRPOPlus
 
         model = TRPOPlus.load(source / "model.zip", device="cpu")
-        model.__dict__.pop("train", None)  # the study's wrapper of train(), pickled by runs before 2026-11-22 03:50
+        model.__dict__.pop("train", None)  # the study's wrapper of train(), pickled by older runs
         model.save(run / f"{env_id}.zip", exclude=["train", "rollout_memory"])  # small: no replay memory
-        params = _hyperparameters("trpo_plus", env_id, VARIANTS[variant][1])
+        params = hyperparameters(VARIANTS[variant], env_id)
         config = {key: value for key, value in params.items() if key not in {"callback", "monitor_kwargs", "policy_kwargs"}}
         if (source / "vecnormalize.pkl").exists():
             shutil.copyfile(source / "vecnormalize.pkl", run / env_id / "vecnormalize.pkl")

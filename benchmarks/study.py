@@ -1,0 +1,204 @@
+"""The convergence study's configuration: its envs and variants, read from benchmarks/study.yml.
+
+A variant is the zoo hyperparameters of its algorithm (zoo_hyperparams/<algo>.yml) on an env with the variant's
+overrides on top; ``settings`` resolves them, ``load_study`` reads and checks the YAML. Nothing here depends on the
+other modules of the study.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+STUDY_FILE = Path(__file__).resolve().with_name("study.yml")
+ALGOS = ("trpo_plus", "trpo", "ppo")
+VARIANT_KEYS = {"label", "algo", "hyperparameters", "env_kwargs", "train_wrappers", "algo_class", "zero_cg_start"}
+ENV_KEYS = {"budget", "target", "target_within", "target_held"}
+
+
+@dataclass(frozen=True)
+class HoldThenShrink:
+    """A ``target_kl`` schedule: ``start`` until ``hold`` of the run is done, then linear to ``end`` at its end."""
+
+    start: float
+    end: float
+    hold: float
+
+    def __call__(self, progress_remaining: float) -> float:
+        done = 1.0 - progress_remaining
+        if done <= self.hold:
+            return self.start
+        return self.start + (self.end - self.start) * (done - self.hold) / (1.0 - self.hold)
+
+
+SCHEDULES: dict[str, type] = {"hold_then_shrink": HoldThenShrink}  # a hyperparameter written {<name>: {kwargs}}
+
+
+@dataclass(frozen=True)
+class EnvSettings:
+    """An env of the study: its budget (env steps), and the success rate to reach within ``target_within`` steps
+    (held at every evaluation after that, with ``target_held``)."""
+
+    budget: int
+    target: float
+    target_within: int
+    target_held: bool = False
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One variant of the study: what it changes against the zoo settings of ``algo`` (study.yml's keys)."""
+
+    name: str
+    label: str
+    algo: str
+    hyperparameters: dict[str, Any] = field(default_factory=dict)
+    env_kwargs: dict[str, Any] | None = None
+    train_wrappers: list[dict[str, dict[str, Any]]] = field(default_factory=list)
+    algo_class: str | None = None
+    zero_cg_start: bool = False
+
+
+@dataclass(frozen=True)
+class Study:
+    envs: dict[str, EnvSettings]
+    variants: dict[str, Variant]
+    study_variants: list[str]
+
+
+class StudyError(ValueError):
+    """A study file that cannot be used; the message names the variant (or env) and the key."""
+
+
+def load_study(path: str | Path = STUDY_FILE) -> Study:
+    """Read and check the study file: every env's settings, every variant's keys and their types."""
+    data = yaml.safe_load(Path(path).read_text())
+    envs = {env_id: _env_settings(env_id, settings) for env_id, settings in data["envs"].items()}
+    variants = {name: _variant(name, copy.deepcopy(entry)) for name, entry in data["variants"].items()}
+    study_variants = list(data["study_variants"])
+    if unknown := [name for name in study_variants if name not in variants]:
+        raise StudyError(f"{path}: study_variants names no variant {unknown}")
+    return Study(envs, variants, study_variants)
+
+
+def _env_settings(env_id: str, settings: Mapping[str, Any]) -> EnvSettings:
+    if unknown := set(settings) - ENV_KEYS:
+        raise StudyError(f"env {env_id}: unknown keys {sorted(unknown)} (known: {sorted(ENV_KEYS)})")
+    budget = int(settings["budget"])
+    return EnvSettings(
+        budget=budget,
+        target=float(settings["target"]),
+        target_within=int(settings.get("target_within", budget)),
+        target_held=bool(settings.get("target_held", False)),
+    )
+
+
+def _variant(name: str, entry: Mapping[str, Any]) -> Variant:
+    def fail(message: str) -> StudyError:
+        return StudyError(f"variant {name}: {message}")
+
+    if not isinstance(entry, Mapping):
+        raise fail(f"must be a mapping, got {entry!r}")
+    if unknown := set(entry) - VARIANT_KEYS:
+        raise fail(f"unknown keys {sorted(unknown)} (known: {sorted(VARIANT_KEYS)})")
+    if not isinstance(entry.get("label"), str) or not entry["label"]:
+        raise fail("needs a label (a string)")
+    if entry.get("algo") not in ALGOS:
+        raise fail(f"algo must be one of {ALGOS}, got {entry.get('algo')!r}")
+    hyperparameters = dict(entry.get("hyperparameters") or {})
+    for key in ("env_kwargs", "env_wrapper", "n_envs", "normalize", "policy"):
+        if key in hyperparameters:
+            raise fail(f"hyperparameters cannot set {key} (a variant changes the model's settings there)")
+    if not isinstance(hyperparameters.get("policy_kwargs", {}), dict):
+        raise fail("policy_kwargs must be a mapping (it adds to the zoo's)")
+    for key, value in hyperparameters.items():
+        if isinstance(value, dict) and key != "policy_kwargs":
+            hyperparameters[key] = _schedule(value, fail)
+    env_kwargs = entry.get("env_kwargs")
+    if env_kwargs is not None and not isinstance(env_kwargs, dict):
+        raise fail(f"env_kwargs must be a mapping, got {env_kwargs!r}")
+    wrappers = entry.get("train_wrappers") or []
+    if not isinstance(wrappers, list) or not all(_is_wrapper_entry(w) for w in wrappers):
+        raise fail(f"train_wrappers must be a list of {{module.Class: {{kwargs}}}}, got {wrappers!r}")
+    algo_class = entry.get("algo_class")
+    if algo_class is not None and (not isinstance(algo_class, str) or "." not in algo_class):
+        raise fail(f"algo_class must be a dotted path module.Class, got {algo_class!r}")
+    zero_cg_start = entry.get("zero_cg_start", False)
+    if not isinstance(zero_cg_start, bool) or (zero_cg_start and entry["algo"] != "trpo"):
+        raise fail("zero_cg_start is true or false, and true only for algo trpo (sb3-contrib's CG)")
+    return Variant(name, entry["label"], entry["algo"], hyperparameters, env_kwargs, wrappers, algo_class, zero_cg_start)
+
+
+def _schedule(value: dict[str, Any], fail: Any) -> Any:
+    """``{hold_then_shrink: {start: 0.01, end: 0.001, hold: 0.4}}`` -> ``HoldThenShrink(0.01, 0.001, 0.4)``."""
+    if len(value) != 1 or next(iter(value)) not in SCHEDULES or not isinstance(next(iter(value.values())), dict):
+        raise fail(f"a mapping-valued hyperparameter is a schedule {{name: {{kwargs}}}} of {sorted(SCHEDULES)}, got {value}")
+    ((name, kwargs),) = value.items()
+    try:
+        return SCHEDULES[name](**kwargs)
+    except TypeError as error:
+        raise fail(f"schedule {name}: {error}") from None
+
+
+def _is_wrapper_entry(entry: Any) -> bool:
+    if isinstance(entry, str):
+        return "." in entry
+    return (
+        isinstance(entry, dict)
+        and len(entry) == 1
+        and "." in next(iter(entry))
+        and isinstance(next(iter(entry.values())) or {}, dict)
+    )
+
+
+STUDY = load_study()
+ENVS = STUDY.envs
+VARIANTS = STUDY.variants
+STUDY_VARIANTS = STUDY.study_variants
+BUDGETS = {env_id: env.budget for env_id, env in ENVS.items()}
+TARGETS = {env_id: env.target for env_id, env in ENVS.items()}
+TARGET_WITHIN = {env_id: env.target_within for env_id, env in ENVS.items()}
+TARGET_HELD = {env_id for env_id, env in ENVS.items() if env.target_held}
+LABELS = {name: variant.label for name, variant in VARIANTS.items()}
+
+
+# ---------------------------------------------------------------------------------------------- settings
+def hyperparameters(variant: Variant, env_id: str) -> dict[str, Any]:
+    """The zoo hyperparameters of ``variant.algo`` on ``env_id`` with the variant's on top (its policy_kwargs add to
+    the zoo's net_arch, activation, ...; its env_kwargs replace the zoo's)."""
+    from sb3_trpo_plus.zoo import load_hyperparameters
+
+    params = dict(load_hyperparameters(ROOT / "zoo_hyperparams" / f"{variant.algo}.yml", variant.algo, [env_id])[env_id])
+    for key, value in variant.hyperparameters.items():
+        params[key] = {**params.get(key, {}), **value} if key == "policy_kwargs" else value
+    if variant.env_kwargs is not None:
+        params["env_kwargs"] = dict(variant.env_kwargs)
+    return params
+
+
+@dataclass(frozen=True)
+class ModelSettings:
+    """What builds a variant's model on an env: constructor kwargs, envs, VecNormalize, policy, env kwargs."""
+
+    kwargs: dict[str, Any]
+    n_envs: int
+    normalize: bool
+    policy: str
+    env_kwargs: dict[str, Any]
+
+
+def settings(variant: Variant, env_id: str) -> ModelSettings:
+    """The zoo settings of ``variant`` on ``env_id``, split as the study builds its envs and model."""
+    params = hyperparameters(variant, env_id)
+    n_envs, normalize = int(params.pop("n_envs", 1)), bool(params.pop("normalize", False))
+    policy = params.pop("policy")
+    for key in ("n_timesteps", "callback", "monitor_kwargs", "normalize_kwargs", "env_wrapper", "vec_env_wrapper"):
+        params.pop(key, None)
+    env_kwargs = dict(params.pop("env_kwargs", None) or {})  # the evaluation envs' (and, under the wrappers, training)
+    return ModelSettings(params, n_envs, normalize, policy, env_kwargs)
