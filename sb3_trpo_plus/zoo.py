@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import importlib
 import inspect
 import re
 import sys
@@ -45,6 +46,9 @@ ZOO_KEYS: dict[str, tuple[type, ...]] = {
     "env_kwargs": (dict,),
     "policy_kwargs": (dict, str),
 }
+# packages whose wrapper classes a YAML file may name (rl-zoo3 imports and calls what env_wrapper names)
+WRAPPER_PACKAGES = ("grasp_envs.", "gymnasium.wrappers.", "stable_baselines3.", "sb3_contrib.", "rl_zoo3.wrappers.",
+                    "sb3_trpo_plus.")  # fmt: skip
 SCHEDULE_KEYS = {"learning_rate", "clip_range", "clip_range_vf"}  # may be rl-zoo schedules such as "lin_3e-4"
 SCHEDULE_PATTERN = re.compile(r"^lin_[0-9.eE+-]+$")
 POLICY_KWARGS_KEYS = {"net_arch", "activation_fn", "log_std_init", "ortho_init", "squash_output", "full_std",
@@ -158,7 +162,11 @@ def load_hyperparameters(path: str | Path, algo: str, env_ids: list[str] | None 
                 raise HyperparameterError(f"{where}: expected {names}, got {type(value).__name__} {value!r}")
             if key in SCHEDULE_KEYS and isinstance(value, str) and not SCHEDULE_PATTERN.match(value):
                 raise HyperparameterError(f"{where}: expected a number or a schedule 'lin_<value>', got {value!r}")
-            checked[key] = parse_policy_kwargs(value, f"{path}: {env_id}") if key == "policy_kwargs" else value
+            if key == "policy_kwargs":
+                value = parse_policy_kwargs(value, f"{path}: {env_id}")
+            elif key in {"env_wrapper", "vec_env_wrapper"}:
+                value = check_wrappers(value, where, vectorised=key == "vec_env_wrapper")
+            checked[key] = value
         if "n_timesteps" not in checked or "policy" not in checked:
             raise HyperparameterError(f"{path}: {env_id}: n_timesteps and policy are required")
         if env_id in _our_env_ids():
@@ -167,6 +175,56 @@ def load_hyperparameters(path: str | Path, algo: str, env_ids: list[str] | None 
             checked.setdefault("callback", "sb3_trpo_plus.callbacks.RewardTermsCallback")
         result[env_id] = checked
     return result
+
+
+def check_wrappers(value: Any, where: str, vectorised: bool = False) -> list[str | dict[str, dict[str, Any]]]:
+    """rl-zoo's ``env_wrapper`` (or ``vec_env_wrapper``) value as a list of ``name`` or ``{name: kwargs}``, each name a
+    wrapper class in a known package (``WRAPPER_PACKAGES``): rl-zoo3 imports the named module and calls the named
+    object with the kwargs, so a name from elsewhere would run arbitrary code."""
+    import gymnasium as gym
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    entries = value if isinstance(value, list) else [value]
+    checked: list[str | dict[str, dict[str, Any]]] = []
+    for entry in entries:
+        if isinstance(entry, dict):
+            if len(entry) != 1:
+                raise HyperparameterError(f"{where}: a wrapper with arguments is {{name: {{argument: value}}}}, got {entry!r}")
+            ((name, kwargs),) = entry.items()
+            if not isinstance(kwargs, dict) or not all(isinstance(k, str) for k in kwargs):
+                raise HyperparameterError(f"{where}: the arguments of {name!r} must be a mapping, got {kwargs!r}")
+        else:
+            name, kwargs = entry, None
+        if not isinstance(name, str) or not name.startswith(WRAPPER_PACKAGES):
+            raise HyperparameterError(f"{where}: wrapper {name!r} is not a class of {', '.join(WRAPPER_PACKAGES)}")
+        module_name, _, class_name = name.rpartition(".")
+        try:
+            wrapper = getattr(importlib.import_module(module_name), class_name)
+        except (ImportError, AttributeError):
+            raise HyperparameterError(f"{where}: no wrapper {name!r}") from None
+        base = VecEnvWrapper if vectorised else gym.Wrapper
+        if not (isinstance(wrapper, type) and issubclass(wrapper, base)):
+            raise HyperparameterError(f"{where}: {name!r} is not a {base.__name__} subclass")
+        checked.append(name if kwargs is None else {name: dict(kwargs)})
+    return checked
+
+
+def evaluation_wrappers(value: Any) -> list[Any] | None:
+    """``env_wrapper``'s entries without the training aids (wrapper classes with ``training_only = True``, such as
+    ``grasp_envs.wrappers.ScriptedStarts``): what evaluation and enjoy envs are wrapped with."""
+    if value is None:
+        return None
+    kept = []
+    for entry in value if isinstance(value, list) else [value]:
+        name = next(iter(entry)) if isinstance(entry, dict) else entry
+        if isinstance(name, str):
+            module_name, _, class_name = name.rpartition(".")
+            wrapper = getattr(importlib.import_module(module_name), class_name, None)
+        else:
+            wrapper = name
+        if not getattr(wrapper, "training_only", False):
+            kept.append(entry)
+    return kept or None
 
 
 def _our_env_ids() -> tuple[str, ...]:
@@ -209,6 +267,51 @@ def register_in_rl_zoo() -> None:
     from sb3_trpo_plus.trpo_plus import TRPOPlus
 
     zoo_utils.ALGOS["trpo_plus"] = TRPOPlus
+    _leave_training_aids_out_of_evaluation()
     HYPERPARAMS_SAMPLER["trpo_plus"] = sample_trpo_plus_params
     if "trpo" in HYPERPARAMS_CONVERTER:
         HYPERPARAMS_CONVERTER["trpo_plus"] = HYPERPARAMS_CONVERTER["trpo"]
+
+
+def _leave_training_aids_out_of_evaluation() -> None:
+    """rl-zoo3 wraps its evaluation envs (EvalCallback's, and ``enjoy``'s) with the YAML's ``env_wrapper`` too: give
+    them the wrappers without the training aids (``evaluation_wrappers``). Idempotent."""
+    from rl_zoo3 import enjoy, record_video
+    from rl_zoo3 import utils as zoo_utils
+    from rl_zoo3.exp_manager import ExperimentManager
+
+    if getattr(ExperimentManager.create_envs, "_evaluation_wrappers", False):
+        return
+    preprocess, create_envs, create_test_env = (
+        ExperimentManager._preprocess_hyperparams,
+        ExperimentManager.create_envs,
+        zoo_utils.create_test_env,
+    )
+
+    def _preprocess_hyperparams(self: Any, hyperparams: dict[str, Any]) -> Any:
+        self._evaluation_env_wrapper = zoo_utils.get_wrapper_class(
+            {"env_wrapper": evaluation_wrappers(hyperparams.get("env_wrapper"))}
+        )
+        return preprocess(self, hyperparams)
+
+    def _create_envs(self: Any, n_envs: int, eval_env: bool = False, no_log: bool = False) -> Any:
+        if not eval_env:
+            return create_envs(self, n_envs, eval_env, no_log)
+        training_wrapper, self.env_wrapper = self.env_wrapper, getattr(self, "_evaluation_env_wrapper", self.env_wrapper)
+        try:
+            return create_envs(self, n_envs, eval_env, no_log)
+        finally:
+            self.env_wrapper = training_wrapper
+
+    def _create_test_env(*args: Any, **kwargs: Any) -> Any:
+        hyperparams = kwargs.get("hyperparams")
+        if hyperparams is not None and "env_wrapper" in hyperparams:
+            kwargs["hyperparams"] = {**hyperparams, "env_wrapper": evaluation_wrappers(hyperparams["env_wrapper"])}
+        return create_test_env(*args, **kwargs)
+
+    _create_envs._evaluation_wrappers = True  # type: ignore[attr-defined]
+    ExperimentManager._preprocess_hyperparams = _preprocess_hyperparams  # type: ignore[method-assign]
+    ExperimentManager.create_envs = _create_envs  # type: ignore[method-assign]
+    for module in (zoo_utils, enjoy, record_video):
+        if hasattr(module, "create_test_env"):
+            module.create_test_env = _create_test_env  # type: ignore[attr-defined]

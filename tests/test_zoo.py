@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rl_zoo3.utils import get_wrapper_class
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
@@ -26,7 +27,8 @@ def test_every_yaml_entry_builds_and_runs(algo: str, env_id: str) -> None:
         params.pop(key, None)
     policy = params.pop("policy")
     params.update(n_steps=64, batch_size=64)
-    env = VecNormalize(make_vec_env(env_id, n_envs=2, seed=0))
+    wrapper = get_wrapper_class({"env_wrapper": params.pop("env_wrapper", None)})
+    env = VecNormalize(make_vec_env(env_id, n_envs=2, seed=0, wrapper_class=wrapper))
     model = algorithms()[algo](policy, env, seed=0, **params)
     model.learn(256)
     assert model.num_timesteps >= 256
@@ -45,6 +47,7 @@ def test_all_envs_have_entries_in_every_file() -> None:
         "Grasper3D-v4",
         "Grasper3D-v5",
         "Grasper3D-v6",
+        "Grasper3D-v7",
         "WallReacher3D-v0",
         "Reacher-v5",
         "Pendulum-v1",

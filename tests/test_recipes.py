@@ -1,0 +1,90 @@
+"""The recipes: the recommended Grasper's YAML is the shipped agent's, and training aids reach training envs only."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from grasp_envs.registration import RECOMMENDED_GRASPER
+from sb3_trpo_plus import cli
+from sb3_trpo_plus.zoo import ALGO_FILES, ZOO_DIR, HyperparameterError, check_wrappers, evaluation_wrappers
+
+ROOT = Path(__file__).resolve().parent.parent
+AGENT = ROOT / "trained_agents" / "trpo_plus" / f"{RECOMMENDED_GRASPER}_1"
+SCRIPTED_STARTS = "grasp_envs.wrappers.ScriptedStarts"
+
+
+def _raw_entry(algo: str, env_id: str) -> dict[str, Any]:
+    return yaml.safe_load((ZOO_DIR / ALGO_FILES[algo]).read_text())[env_id]  # type: ignore[no-any-return]
+
+
+def test_recommended_grasper_yaml_is_the_shipped_agents_config() -> None:
+    """The shipped agent was trained with exactly the YAML's recipe: its config.yml and the hyperparameters saved in
+    its model zip (read as plain data, nothing unpickled) equal the YAML entry."""
+    from sb3_trpo_plus.agents import read_model_data
+
+    entry = _raw_entry("trpo_plus", RECOMMENDED_GRASPER)
+    config = json.loads((AGENT / RECOMMENDED_GRASPER / "config.yml").read_text())
+    assert config == entry
+    saved = read_model_data(AGENT / f"{RECOMMENDED_GRASPER}.zip")
+    algorithm_keys = {"n_steps", "batch_size", "gamma", "gae_lambda", "cg_max_steps", "cg_damping", "n_critic_updates",
+                      "replay_memory", "cg_warm_start"}  # fmt: skip
+    assert algorithm_keys <= set(entry)
+    for key in algorithm_keys:
+        assert saved[key] == entry[key], key
+    assert saved["n_envs"] == entry["n_envs"]
+    assert entry["env_wrapper"] == [{SCRIPTED_STARTS: {"probability": 0.25, "steps": [50, 100]}}]
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [
+        ("os.system", "is not a class of"),
+        ([{"subprocess.call": {"args": "touch /tmp/x"}}], "is not a class of"),
+        ("grasp_envs.Grasper3DEnv", "not a Wrapper subclass"),
+        ("grasp_envs.wrappers.NoSuchWrapper", "no wrapper"),
+        ([{SCRIPTED_STARTS: [0.25]}], "must be a mapping"),
+        ([{SCRIPTED_STARTS: {}, "gymnasium.wrappers.ClipAction": {}}], "with arguments is"),
+    ],
+)
+def test_env_wrapper_names_only_wrapper_classes_of_known_packages(value: Any, message: str) -> None:
+    with pytest.raises(HyperparameterError, match=message):
+        check_wrappers(value, "f.yml: Grasper3D-v7: env_wrapper")
+
+
+def test_evaluation_wrappers_leave_training_aids_out() -> None:
+    clip = "gymnasium.wrappers.ClipAction"
+    assert check_wrappers([clip, {SCRIPTED_STARTS: {"probability": 0.5}}], "here") == [
+        clip,
+        {SCRIPTED_STARTS: {"probability": 0.5}},
+    ]
+    assert evaluation_wrappers([clip, {SCRIPTED_STARTS: {"probability": 0.5}}]) == [clip]
+    assert evaluation_wrappers([{SCRIPTED_STARTS: {}}]) is None
+    assert evaluation_wrappers(None) is None
+
+
+def test_trpo_plus_train_wraps_training_envs_only(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`trpo-plus train --env Grasper3D-v7` with evaluation: the recipe's scripted starts wrap each of the training
+    envs and none of the evaluation envs (rl-zoo3 alone would wrap both)."""
+    from grasp_envs.wrappers import ScriptedStarts
+
+    made: list[int] = []
+    original = ScriptedStarts.__init__
+
+    def counting(self: ScriptedStarts, *args: Any, **kwargs: Any) -> None:
+        made.append(1)
+        original(self, *args, **kwargs)
+
+    monkeypatch.setattr(ScriptedStarts, "__init__", counting)
+    monkeypatch.chdir(tmp_path)
+    tiny = ["-params", "n_envs:2", "n_steps:16", "batch_size:16", "--num-threads", "1"]
+    evaluation = ["--eval-freq", "16", "--eval-episodes", "1", "--n-eval-envs", "1"]
+    cli.main(
+        ["train", "--env", RECOMMENDED_GRASPER, "-n", "64", "--seed", "0", "-f", str(tmp_path / "logs"), *evaluation, *tiny]
+    )
+    assert len(made) == 2  # the two training envs; the evaluation env has none
+    assert (tmp_path / "logs" / "trpo_plus" / f"{RECOMMENDED_GRASPER}_1" / f"{RECOMMENDED_GRASPER}.zip").is_file()
