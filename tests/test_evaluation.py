@@ -1,0 +1,95 @@
+"""sb3_trpo_plus.evaluation: seeded episodes, fixed VecNormalize statistics, the env's own returns and successes."""
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.running_mean_std import RunningMeanStd
+from stable_baselines3.common.vec_env import VecNormalize
+
+import grasp_envs  # noqa: F401  (registers the envs)
+from sb3_trpo_plus.evaluation import evaluate_agent, evaluation_env
+
+ENV_ID = "Reacher2D-v1"
+
+
+class Recorder:
+    """A policy that pushes with a constant action and keeps every observation it is shown."""
+
+    def __init__(self, action: float = 0.5) -> None:
+        self.action = action
+        self.observations: list[np.ndarray] = []
+
+    def predict(self, observation: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, None]:
+        self.observations.append(np.array(observation[0]))
+        return np.full((1, 2), self.action, dtype=np.float32), None
+
+
+def _episode(seed: int | None, env: gym.Env | None = None, action: float = 0.5) -> tuple[list[np.ndarray], float, bool]:
+    """One episode of the constant action on a plain env reset with ``seed``: observations, return, final success."""
+    env = env or gym.make(ENV_ID)
+    observation, _ = env.reset(seed=seed)
+    observations, total, done, info = [observation], 0.0, False, {}
+    while not done:
+        observation, reward, terminated, truncated, info = env.step(np.full(2, action, dtype=np.float32))
+        total += float(reward)
+        done = terminated or truncated
+        observations.append(observation)
+    return observations[:-1], total, bool(info.get("is_success", False))
+
+
+def test_episode_k_is_reset_with_seed_plus_k_and_gives_the_envs_return_and_success() -> None:
+    policy = Recorder()
+    result = evaluate_agent(policy, evaluation_env(ENV_ID), n_episodes=3, seed=40)
+    expected = [_episode(40 + k) for k in range(3)]
+    length = len(expected[0][0])
+    assert len(policy.observations) == 3 * length
+    for k, (observations, total, success) in enumerate(expected):
+        np.testing.assert_allclose(policy.observations[k * length : (k + 1) * length], observations, rtol=1e-6)
+        assert result.returns[k] == pytest.approx(total, abs=1e-5)
+        assert result.successes[k] == success
+    assert result.episodes == 3
+    assert result.mean_return == pytest.approx(np.mean([total for _, total, _ in expected]), abs=1e-5)
+    assert result.success_rate == np.mean([success for _, _, success in expected])
+    # the same episodes whatever ran before: episodes 1 and 2 are those of a run from seed 41
+    again = evaluate_agent(Recorder(), evaluation_env(ENV_ID), n_episodes=2, seed=41)
+    assert again.returns == result.returns[1:]
+
+
+def test_seeded_once_the_later_episodes_continue_the_envs_generator() -> None:
+    policy = Recorder()
+    result = evaluate_agent(policy, evaluation_env(ENV_ID), n_episodes=2, seed=40, seed_every_episode=False)
+    env = gym.make(ENV_ID)
+    first, second = _episode(40, env), _episode(None, env)  # the second reset draws from the first's generator
+    assert result.returns == pytest.approx((first[1], second[1]), abs=1e-5)
+    np.testing.assert_allclose(policy.observations[len(first[0])], second[0][0], rtol=1e-6)
+
+
+@pytest.mark.parametrize("saved", [False, True])
+def test_vecnormalize_statistics_normalize_the_observations_and_stay_fixed(tmp_path: Path, saved: bool) -> None:
+    statistics = RunningMeanStd(shape=gym.make(ENV_ID).observation_space.shape)
+    statistics.mean, statistics.var = np.full_like(statistics.mean, 0.1), np.full_like(statistics.var, 4.0)
+    statistics.count = 7.0
+    if saved:  # a run's vecnormalize.pkl
+        training = VecNormalize(make_vec_env(ENV_ID, n_envs=1))
+        training.obs_rms = statistics
+        training.save(str(tmp_path / "vecnormalize.pkl"))
+    env = evaluation_env(ENV_ID, normalization=tmp_path / "vecnormalize.pkl" if saved else statistics)
+    assert isinstance(env, VecNormalize) and not env.training and not env.norm_reward
+    policy = Recorder()
+    result = evaluate_agent(policy, env, n_episodes=1, seed=3)
+    observations, total, _ = _episode(3)
+    expected = np.clip((np.array(observations) - 0.1) / np.sqrt(4.0 + 1e-8), -10.0, 10.0)
+    np.testing.assert_allclose(policy.observations, expected, rtol=1e-5, atol=1e-6)
+    assert result.returns[0] == pytest.approx(total, abs=1e-5)  # the env's rewards, not normalized
+    np.testing.assert_array_equal(env.obs_rms.mean, np.full_like(statistics.mean, 0.1))
+    assert env.obs_rms.count == 7.0
+
+
+def test_one_env_and_at_least_one_episode() -> None:
+    with pytest.raises(ValueError, match="one env"):
+        evaluate_agent(Recorder(), make_vec_env(ENV_ID, n_envs=2), n_episodes=1, seed=0)
+    with pytest.raises(ValueError, match="at least 1"):
+        evaluate_agent(Recorder(), evaluation_env(ENV_ID), n_episodes=0, seed=0)
