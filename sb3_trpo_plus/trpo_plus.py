@@ -133,10 +133,12 @@ def _is_environment(value: Any) -> bool:
 
 
 def _is_device(value: Any) -> bool:
-    if isinstance(value, th.device) or value == "auto":
+    if isinstance(value, th.device):
         return True
     if not isinstance(value, str):
         return False
+    if value == "auto":
+        return True
     try:
         th.device(value)
     except RuntimeError:

@@ -180,8 +180,11 @@ def test_replay_with_vecnormalize_stores_raw_observations() -> None:
     assert np.isfinite(model.logger.name_to_value["train/value_loss"])
 
 
-def test_critic_is_fit_on_current_rollout_only() -> None:
-    model = TRPOPlus("MlpPolicy", "Pendulum-v1", replay_memory=3, **TINY)
+@pytest.mark.parametrize("replay_critic", [False, True])
+def test_critic_is_fit_on_current_rollout_unless_replay_critic(replay_critic: bool) -> None:
+    """By default the critic sees the current rollout only (as the thesis); ``replay_critic=True`` adds the replayed
+    rollouts: 0, 1, 2, 3 of them at the four updates of a memory of 3."""
+    model = TRPOPlus("MlpPolicy", "Pendulum-v1", replay_memory=3, replay_critic=replay_critic, **TINY)
     batches = []
     original = model._critic_minibatches
 
@@ -192,7 +195,39 @@ def test_critic_is_fit_on_current_rollout_only() -> None:
 
     model._critic_minibatches = spy  # type: ignore[method-assign]
     model.learn(4 * 64)
-    assert max(batches) == 64 and sum(batches) == 4 * TINY["n_critic_updates"] * 64
+    rollouts_seen = (1 + 2 + 3 + 4) if replay_critic else 4
+    assert max(batches) == 64 and sum(batches) == rollouts_seen * TINY["n_critic_updates"] * 64
+
+
+def test_replay_is_clip_truncates_the_replayed_samples_weights() -> None:
+    """``replay_is_clip=c`` scales a replayed sample's advantage by ``min(1, c / rho)``, ``rho = pi_current / q``, so
+    that its weight in the surrogate is ``min(rho, c)``; the current rollout's samples are left as they are."""
+    clip = 1.0
+    model = TRPOPlus("MlpPolicy", "Pendulum-v1", seed=0, replay_memory=1, replay_is_clip=clip, **TINY)
+    model.learn(2 * 64)  # the memory holds the first rollout, sampled by an older policy than the current one
+    batch = model._policy_batch(model._reevaluate_memory())
+    assert batch.n_current == 64 and batch.n_replayed == 64
+    log_prob = model.policy.get_distribution(batch.observations).log_prob(batch.actions).detach()
+    clipped = model._step_advantages(batch, log_prob)
+    model.replay_is_clip = None
+    unclipped = model._step_advantages(batch, log_prob)
+    rho = th.exp(log_prob - batch.sampling_log_prob)[64:]
+    assert bool((rho > clip).any()), "no weight above the clip: the test would prove nothing"
+    th.testing.assert_close(clipped.advantages[:64], unclipped.advantages[:64])
+    th.testing.assert_close(clipped.advantages[64:], unclipped.advantages[64:] * th.clamp(clip / rho, max=1.0))
+    assert 0 < unclipped.replay_ess <= 1 and 0 < clipped.replay_ess <= 1
+
+
+def test_linear_baseline_l2_is_the_ridge_coefficient() -> None:
+    """``linear_baseline_l2`` is the baseline's ridge coefficient: on the same rollout a larger one shrinks its weights."""
+    norms = []
+    for l2 in (0.0, 2.0, 1000.0):
+        model = TRPOPlus("MlpPolicy", "Pendulum-v1", seed=0, value_baseline="linear", linear_baseline_l2=l2, **TINY)
+        assert model.linear_baseline is not None and model.linear_baseline.l2_reg == l2
+        model.learn(64)  # one rollout (the same for all: the baseline does not act), one fit
+        assert model.linear_baseline.weights is not None
+        norms.append(float(np.linalg.norm(model.linear_baseline.weights)))
+    assert norms[0] > norms[1] > norms[2]
 
 
 def test_warm_start_resets_after_rejected_line_search(monkeypatch) -> None:
