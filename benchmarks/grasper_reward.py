@@ -4,12 +4,12 @@
     python -m benchmarks.grasper_reward --env Grasper3D-v1 --algo trpo_plus --env-kwargs '{"reward_grasp_weight": 8}' \
         --model-kwargs '{"cg_warm_start": true}' --tag g8 --seed 0
 
-Trains the anchor setting of issue #3 (sb3-contrib TRPO or TRPOPlus, 8 envs, VecNormalize, 100-100 tanh
+Trains the Grasper's anchor setting (sb3-contrib TRPO or TRPOPlus, 8 envs, VecNormalize, 100-100 tanh
 MLP, gamma 0.995, target_kl 0.01) in chunks; after each chunk it saves the model and VecNormalize
 statistics and appends the chunk's training-episode statistics (lift rate = episodes whose final step
 was a success, mean return) to benchmarks/results/grasper_reward/<run>.json (<run>: algo, reward mode,
 --tag and seed, prefixed by the env id for versions other than v0). Rerunning continues from the
-last chunk, so a session ending mid-run loses at most one chunk.
+last chunk, so a run stopped midway loses at most one chunk.
 """
 
 from __future__ import annotations

@@ -165,7 +165,7 @@ def _evaluations_within(rows: list[dict[str, float]], timesteps: float) -> int:
 
 
 def target_table(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]], out: Path) -> list[str]:
-    """The issue's target, seed by seed: which seeds reach it within ``TARGET_WITHIN`` and, on the envs of
+    """The target, seed by seed: which seeds reach it within ``TARGET_WITHIN`` and, on the envs of
     ``TARGET_HELD``, stay at or above it at every evaluation after that (both: the target met), how many of those
     evaluations are, and how many of the checkpoints after it are on ``REEVALUATION_EPISODES`` episodes where
     ``python -m benchmarks.convergence reevaluate`` evaluated them again (its default reset seed)."""
@@ -206,18 +206,18 @@ def target_table(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]
                 )
             verdicts = {s: seed_verdict(read_reevaluation(out, env_id, variant, s), [r["timesteps"] for r in seeds[s][n:]],
                                         target) for s, n in split.items()}  # fmt: skip
-            declared_cell = "—"
+            reading_cell = "—"
             if any(verdict is not None for verdict in verdicts.values()):
-                declared_cell = _seed_count({s for s, v in verdicts.items() if v}, len(seeds)) + " pass"
+                reading_cell = _seed_count({s for s, v in verdicts.items() if v}, len(seeds)) + " pass"
                 for word, value in (("fail", False), ("not yet decided", None)):
                     if which := [str(s) for s in sorted(verdicts) if verdicts[s] is value]:
-                        declared_cell += f"; {word}: {', '.join(which)}"
+                        reading_cell += f"; {word}: {', '.join(which)}"
             cells += [
                 _seed_count(stayed, len(seeds)),
                 _seed_count(reached & stayed, len(seeds)),
                 f"{passed} of {sum(map(len, after.values()))}",
                 again_cell,
-                declared_cell,
+                reading_cell,
             ]
         lines.append("| " + " | ".join(cells) + " |")
     return lines
@@ -335,13 +335,13 @@ def write_report(out: Path, docs: Path) -> None:
             "",
             f"Budget {BUDGETS[env_id]:,} env steps; seeds {', '.join(map(str, seeds))}; "
             f"{hours:.2f} h of training in all (one CPU thread per run, mostly two runs at a time; "
-            "exceptions under *How it was run*).",
+            "exceptions under *Machine and versions*).",
             "",
             f"![{env_id} learning curves](images/{image.name})",
             "",
             *tables(env_id, runs),
             "",
-            "The issue's target, seed by seed:",
+            "The target, seed by seed:",
             "",
             *target_table(env_id, runs, out),
             "",

@@ -440,7 +440,7 @@ def test_kept_checkpoints_are_the_study_as_it_stood_after_each_chunk(
         convergence.main([*again, "--timesteps", "4096", "--episodes", "4"])
 
 
-def test_confirm_runs_the_declared_reading_on_the_checkpoints_it_leaves_undecided(
+def test_confirm_runs_the_graspers_reading_on_the_checkpoints_it_leaves_undecided(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """``reevaluate --confirm`` (protocol shrunk to 2 episodes, then 3 from each of two seeds; target 0.5): a checkpoint
@@ -528,7 +528,7 @@ def test_target_table_counts_the_seeds_that_reach_the_target_and_hold_it(tmp_pat
 
 
 def test_checkpoint_verdict_reads_100_episodes_then_500() -> None:
-    """The declared reading at one checkpoint, by hand: 100 episodes from reset seed 20,000 decide at or above 90 %;
+    """The Grasper's reading at one checkpoint, by hand: 100 episodes from reset seed 20,000 decide at or above 90 %;
     below it, those and 200 from each of 30,000 and 40,000, pooled (seed 4 at 2.8M: 88 + 191 + 187 = 466 of 500)."""
 
     def rows(*runs: tuple[int, int, float]) -> list[dict[str, float]]:
