@@ -9,6 +9,7 @@ import pathlib
 import random
 import tempfile
 import time
+import types
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -122,7 +123,7 @@ def _number(condition: Callable[[float], bool], text: str, *, schedule: bool = F
     return Rule(accepts, ("None or " if optional else "") + f"a finite number {text}" + (" or a schedule" if schedule else ""))
 
 
-def _optional(kind: type, text: str) -> Rule:
+def _optional(kind: type | types.UnionType, text: str) -> Rule:
     return Rule(lambda value: value is None or isinstance(value, kind), f"None or {text}")
 
 
@@ -184,7 +185,7 @@ HYPERPARAMETER_RULES: dict[str, Rule] = {
     "value_baseline": Rule(lambda value: isinstance(value, str) and value in VALUE_BASELINES, f"one of {VALUE_BASELINES}"),
     "linear_baseline_l2": _number(lambda x: x >= 0, ">= 0"),
     "stats_window_size": _integer(1),
-    "tensorboard_log": _optional(str | os.PathLike, "a folder path"),  # type: ignore[arg-type]
+    "tensorboard_log": _optional(str | os.PathLike, "a folder path"),
     "policy_kwargs": _optional(dict, "a dict"),
     "verbose": _integer(0),
     "seed": Rule(lambda value: value is None or (_is_int(value) and value >= 0), "None or an integer >= 0"),
