@@ -3,6 +3,7 @@
 from importlib.metadata import PackageNotFoundError, version
 
 import grasp_envs  # noqa: F401  (registers the thesis' environments, so `TRPOPlus(..., "Grasper3D-v0")` works)
+from sb3_trpo_plus.recipes import make_model, recipe
 from sb3_trpo_plus.trpo_plus import TRPOPlus
 
 try:
@@ -10,4 +11,4 @@ try:
 except PackageNotFoundError:  # pragma: no cover - running from a source tree without installation
     __version__ = "0.0.0"
 
-__all__ = ["TRPOPlus", "__version__"]
+__all__ = ["TRPOPlus", "__version__", "make_model", "recipe"]

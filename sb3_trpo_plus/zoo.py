@@ -36,7 +36,7 @@ ZOO_KEYS: dict[str, tuple[type, ...]] = {
     "n_envs": (int,),
     "n_timesteps": (int, float),
     "policy": (str,),
-    "normalize": (bool, str, dict),
+    "normalize": (bool, str, dict),  # text is parsed as a literal dict(...), never evaluated
     "normalize_kwargs": (dict,),
     "env_wrapper": (str, list, dict),
     "vec_env_wrapper": (str, list, dict),
@@ -86,28 +86,33 @@ def _constructor_types(algo_class: type) -> dict[str, tuple[type, ...]]:
     return accepted
 
 
+def dict_text(value: str, where: str, key: str, activations: bool = False) -> dict[str, Any]:
+    """rl-zoo's ``"dict(key=value, ...)"`` text as a mapping, parsed *without* ``eval``: literals only, and
+    ``nn.<Activation>`` names where ``activations``."""
+    try:
+        tree = ast.parse(value.strip(), mode="eval").body
+    except SyntaxError as error:
+        raise HyperparameterError(f"{where}: {key} is not valid: {error}") from None
+    if not (isinstance(tree, ast.Call) and isinstance(tree.func, ast.Name) and tree.func.id == "dict" and not tree.args):
+        raise HyperparameterError(f"{where}: {key} text must be of the form dict(key=value, ...)")
+    mapping: dict[str, Any] = {}
+    for keyword in tree.keywords:
+        node = keyword.value
+        if activations and isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "nn":
+            mapping[str(keyword.arg)] = node.attr
+            continue
+        try:
+            mapping[str(keyword.arg)] = ast.literal_eval(node)
+        except ValueError:
+            allowed = "a literal or nn.<Activation>" if activations else "a literal"
+            raise HyperparameterError(f"{where}: {key} value of {keyword.arg!r} must be {allowed}") from None
+    return mapping
+
+
 def parse_policy_kwargs(value: Any, where: str) -> dict[str, Any]:
     """``policy_kwargs`` as a mapping, or rl-zoo's ``"dict(...)"`` text parsed *without* ``eval``."""
     if isinstance(value, str):
-        try:
-            tree = ast.parse(value.strip(), mode="eval").body
-        except SyntaxError as error:
-            raise HyperparameterError(f"{where}: policy_kwargs is not valid: {error}") from None
-        if not (isinstance(tree, ast.Call) and isinstance(tree.func, ast.Name) and tree.func.id == "dict" and not tree.args):
-            raise HyperparameterError(f"{where}: policy_kwargs text must be of the form dict(key=value, ...)")
-        mapping: dict[str, Any] = {}
-        for keyword in tree.keywords:
-            node = keyword.value
-            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "nn":
-                mapping[str(keyword.arg)] = node.attr
-            else:
-                try:
-                    mapping[str(keyword.arg)] = ast.literal_eval(node)
-                except ValueError:
-                    raise HyperparameterError(
-                        f"{where}: policy_kwargs value of {keyword.arg!r} must be a literal or nn.<Activation>"
-                    ) from None
-        value = mapping
+        value = dict_text(value, where, "policy_kwargs", activations=True)
     if not isinstance(value, dict):
         raise HyperparameterError(f"{where}: policy_kwargs must be a mapping, got {type(value).__name__}")
     result = dict(value)
@@ -164,8 +169,12 @@ def load_hyperparameters(path: str | Path, algo: str, env_ids: list[str] | None 
                 raise HyperparameterError(f"{where}: expected a number or a schedule 'lin_<value>', got {value!r}")
             if key == "policy_kwargs":
                 value = parse_policy_kwargs(value, f"{path}: {env_id}")
+            elif key in {"normalize", "monitor_kwargs"} and isinstance(value, str):
+                value = dict_text(value, f"{path}: {env_id}", key)  # rl-zoo3 would eval the text
+            elif key == "callback":
+                value = check_wrappers(value, where, base="callback")
             elif key in {"env_wrapper", "vec_env_wrapper"}:
-                value = check_wrappers(value, where, vectorised=key == "vec_env_wrapper")
+                value = check_wrappers(value, where, base=key)
             checked[key] = value
         if "n_timesteps" not in checked or "policy" not in checked:
             raise HyperparameterError(f"{path}: {env_id}: n_timesteps and policy are required")
@@ -177,34 +186,36 @@ def load_hyperparameters(path: str | Path, algo: str, env_ids: list[str] | None 
     return result
 
 
-def check_wrappers(value: Any, where: str, vectorised: bool = False) -> list[str | dict[str, dict[str, Any]]]:
-    """rl-zoo's ``env_wrapper`` (or ``vec_env_wrapper``) value as a list of ``name`` or ``{name: kwargs}``, each name a
-    wrapper class in a known package (``WRAPPER_PACKAGES``): rl-zoo3 imports the named module and calls the named
-    object with the kwargs, so a name from elsewhere would run arbitrary code."""
+def check_wrappers(value: Any, where: str, base: str = "env_wrapper") -> list[str | dict[str, dict[str, Any]]]:
+    """rl-zoo's ``env_wrapper``, ``vec_env_wrapper`` or ``callback`` value (``base``) as a list of ``name`` or
+    ``{name: kwargs}``, each name a class of that kind in a known package (``WRAPPER_PACKAGES``): rl-zoo3 imports the
+    named module and calls the named object with the kwargs, so a name from elsewhere would run arbitrary code."""
     import gymnasium as gym
+    from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    bases: dict[str, type] = {"env_wrapper": gym.Wrapper, "vec_env_wrapper": VecEnvWrapper, "callback": BaseCallback}
 
     entries = value if isinstance(value, list) else [value]
     checked: list[str | dict[str, dict[str, Any]]] = []
     for entry in entries:
         if isinstance(entry, dict):
             if len(entry) != 1:
-                raise HyperparameterError(f"{where}: a wrapper with arguments is {{name: {{argument: value}}}}, got {entry!r}")
+                raise HyperparameterError(f"{where}: a class with arguments is {{name: {{argument: value}}}}, got {entry!r}")
             ((name, kwargs),) = entry.items()
             if not isinstance(kwargs, dict) or not all(isinstance(k, str) for k in kwargs):
                 raise HyperparameterError(f"{where}: the arguments of {name!r} must be a mapping, got {kwargs!r}")
         else:
             name, kwargs = entry, None
         if not isinstance(name, str) or not name.startswith(WRAPPER_PACKAGES):
-            raise HyperparameterError(f"{where}: wrapper {name!r} is not a class of {', '.join(WRAPPER_PACKAGES)}")
+            raise HyperparameterError(f"{where}: {name!r} is not a class of {', '.join(WRAPPER_PACKAGES)}")
         module_name, _, class_name = name.rpartition(".")
         try:
             wrapper = getattr(importlib.import_module(module_name), class_name)
         except (ImportError, AttributeError):
-            raise HyperparameterError(f"{where}: no wrapper {name!r}") from None
-        base = VecEnvWrapper if vectorised else gym.Wrapper
-        if not (isinstance(wrapper, type) and issubclass(wrapper, base)):
-            raise HyperparameterError(f"{where}: {name!r} is not a {base.__name__} subclass")
+            raise HyperparameterError(f"{where}: no class {name!r}") from None
+        if not (isinstance(wrapper, type) and issubclass(wrapper, bases[base])):
+            raise HyperparameterError(f"{where}: {name!r} is not a {bases[base].__name__} subclass")
         checked.append(name if kwargs is None else {name: dict(kwargs)})
     return checked
 

@@ -46,7 +46,7 @@ def test_recommended_grasper_yaml_is_the_shipped_agents_config() -> None:
         ("os.system", "is not a class of"),
         ([{"subprocess.call": {"args": "touch /tmp/x"}}], "is not a class of"),
         ("grasp_envs.Grasper3DEnv", "not a Wrapper subclass"),
-        ("grasp_envs.wrappers.NoSuchWrapper", "no wrapper"),
+        ("grasp_envs.wrappers.NoSuchWrapper", "no class"),
         ([{SCRIPTED_STARTS: [0.25]}], "must be a mapping"),
         ([{SCRIPTED_STARTS: {}, "gymnasium.wrappers.ClipAction": {}}], "with arguments is"),
     ],
@@ -88,3 +88,58 @@ def test_trpo_plus_train_wraps_training_envs_only(tmp_path: Path, monkeypatch: p
     )
     assert len(made) == 2  # the two training envs; the evaluation env has none
     assert (tmp_path / "logs" / "trpo_plus" / f"{RECOMMENDED_GRASPER}_1" / f"{RECOMMENDED_GRASPER}.zip").is_file()
+
+
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ("normalize: \"__import__('os').system('touch {mark}')\"", "normalize text must be of the form"),
+        ("normalize: \"dict(norm_obs=__import__('os').system('touch {mark}'))\"", "must be a literal"),
+        ("monitor_kwargs: \"__import__('os').system('touch {mark}')\"", "monitor_kwargs text must be"),
+        ("callback: os.system", "is not a class of"),
+        ("callback: stable_baselines3.common.vec_env.VecNormalize", "not a BaseCallback subclass"),
+    ],
+)
+def test_yaml_text_is_never_evaluated(tmp_path: Path, line: str, message: str) -> None:
+    """rl-zoo3 evals the text of ``normalize`` and ``monitor_kwargs`` and calls what ``callback`` names: our loader
+    parses the text as literals and accepts callback classes of known packages only."""
+    from sb3_trpo_plus.zoo import load_hyperparameters
+
+    mark = tmp_path / "pwned"
+    path = tmp_path / "bad.yml"
+    path.write_text(f"Reacher2D-v1:\n  n_timesteps: 1000\n  policy: MlpPolicy\n  {line.format(mark=mark)}\n")
+    with pytest.raises(HyperparameterError, match=message) as error:
+        load_hyperparameters(path, "trpo_plus")
+    assert str(path) in str(error.value)
+    assert not mark.exists()
+
+
+def test_yaml_dict_text_is_read_as_literals(tmp_path: Path) -> None:
+    from sb3_trpo_plus.zoo import load_hyperparameters
+
+    path = tmp_path / "ok.yml"
+    path.write_text(
+        'Reacher2D-v1:\n  n_timesteps: 1000\n  policy: MlpPolicy\n  normalize: "dict(norm_obs=True, norm_reward=False)"\n'
+    )
+    assert load_hyperparameters(path, "trpo_plus")["Reacher2D-v1"]["normalize"] == {"norm_obs": True, "norm_reward": False}
+
+
+def test_make_model_builds_the_recipe_in_python() -> None:
+    """``make_model`` gives the model ``trpo-plus train`` trains: the recipe's hyperparameters, envs and wrappers."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from grasp_envs.wrappers import ScriptedStarts
+    from sb3_trpo_plus import TRPOPlus, make_model, recipe
+
+    model = make_model(RECOMMENDED_GRASPER, seed=3, n_steps=16, batch_size=16)
+    params = recipe(RECOMMENDED_GRASPER)
+    assert isinstance(model, TRPOPlus) and model.n_steps == 16 and model.seed == 3
+    assert (model.gamma, model.cg_max_steps, model.cg_warm_start) == (params["gamma"], 25, True)
+    env = model.get_env()
+    assert isinstance(env, VecNormalize) and env.num_envs == params["n_envs"] and env.gamma == params["gamma"]
+    assert all(isinstance(e, ScriptedStarts) for e in env.venv.envs)  # type: ignore[attr-defined]
+    model.learn(2 * 16 * params["n_envs"])
+    with pytest.raises(HyperparameterError, match="no recipe for 'CartPole-v1'"):
+        make_model("CartPole-v1")
+    with pytest.raises(ValueError, match="algo must be one of"):
+        recipe(RECOMMENDED_GRASPER, algo="sac")
