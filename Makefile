@@ -9,7 +9,7 @@ STEPS ?=
 SEED ?= 0
 export MUJOCO_GL ?= egl
 
-.PHONY: install test test-fast lint type train docs bench clean
+.PHONY: install test test-fast lint type train docs bench wheel-check clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -45,6 +45,10 @@ docs: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.speed
 	$(BIN)/python -m benchmarks.scaling
+
+# Build the sdist and wheel, install the wheel into a clean virtualenv and run it from outside the checkout
+wheel-check: $(STAMP)
+	BUILD_PYTHON=$(BIN)/python PYTHON=$(PYTHON) .ci/wheel_check.sh
 
 clean:
 	rm -rf $(VENV) site .pytest_cache .mypy_cache .ruff_cache
