@@ -2,7 +2,8 @@
 # Installable as users install it: `python -m build` makes the sdist and, from the sdist, the wheel; both
 # must carry the packages, their data (XML assets, py.typed) and the rl-zoo3 recipes. The wheel is then
 # installed (not editable) into a clean virtualenv and, from a folder outside the checkout, runs the
-# README's quick start, `trpo-plus enjoy` on a shipped agent and `trpo-plus train` on a packaged recipe.
+# README's quick start (without extras), then with the zoo extra `trpo-plus enjoy` on a shipped agent
+# and `trpo-plus train` on a packaged recipe.
 # Usage: .ci/wheel_check.sh   (BUILD_PYTHON: a python with `build`, default .venv/bin/python;
 #                              PYTHON: the interpreter of the clean virtualenv, default python3)
 set -euo pipefail
@@ -57,12 +58,12 @@ print(f"wheel: {len(in_wheel)} files, sdist: {len(in_sdist)} entries; {len(sourc
       f"{len(recipes)} recipes in both, no trained agents")
 PY
 
-step "clean virtualenv: torch==2.13.0 (CPU) first, then the wheel with the zoo extra"
+step "clean virtualenv: torch==2.13.0 (CPU) first, then the wheel without extras"
 "$PYTHON" -m venv "$WORK/venv"
 BIN=$WORK/venv/bin
 # --no-compile: byte-compiling torch and friends would take longer than the checks themselves
 "$BIN/pip" install -q --no-compile "torch==2.13.0"
-"$BIN/pip" install -q --no-compile "$WHEEL[zoo]"
+"$BIN/pip" install -q --no-compile "$WHEEL"
 
 mkdir "$WORK/run"
 cd "$WORK/run"  # outside the checkout: only the installed wheel is importable
@@ -80,6 +81,7 @@ venv = Path(sys.argv[1]).resolve()
 for where in (Path(sb3_trpo_plus.__file__), Path(grasp_envs.__file__), ZOO_DIR):
     assert venv in where.resolve().parents, f"{where} is not in {venv}"
 assert all((ZOO_DIR / name).is_file() for name in ALGO_FILES.values()), ZOO_DIR
+assert sb3_trpo_plus.recipe("Reacher2D-v1")["policy"] == "MlpPolicy"  # read without rl-zoo3 installed
 print("recipes:", ZOO_DIR)
 PY
 
@@ -95,6 +97,9 @@ model = TRPOPlus("MlpPolicy", env_id, n_steps=512)
 model.learn(2_000, progress_bar=False)
 print(f"quick start: {env_id}, {model.num_timesteps} steps")
 PY
+
+step "the zoo extra, for the trpo-plus command"
+"$BIN/pip" install -q --no-compile "$WHEEL[zoo]"
 
 step "trpo-plus enjoy on a shipped agent"
 "$BIN/trpo-plus" enjoy --env Reacher2D-v1 --folder "$REPO/trained_agents" --no-render -n 100
