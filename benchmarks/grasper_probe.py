@@ -1,4 +1,4 @@
-"""Why does a Grasper run stop at the grasp? Probe a saved run of the convergence study (benchmarks/convergence.py).
+"""Why does a Grasper run stop at the grasp? Probe a saved run of the convergence study (`python -m benchmarks.convergence`).
 
     python -m benchmarks.grasper_probe --env Grasper3D-v4 --variant warm --seed 3 [--episodes 30]
     python -m benchmarks.grasper_probe --env Grasper3D-v4 --variant plain_scripted25 --seed 2 --failures [--episodes 40]

@@ -1,6 +1,6 @@
 """Several natural-gradient steps per batch: is that what makes SB3 PPO faster than TRPOPlus on the Grasper?
 
-A probe for benchmarks/convergence.py (variant ``plain_scripted25_ms3``), not a TRPOPlus option: on
+A probe for the convergence study (`python -m benchmarks.convergence`, variant ``plain_scripted25_ms3``), not an option: on
 Grasper3D-v4 PPO's updates move the policy *less* than TRPOPlus' (KL 0.008 against 0.019 per state) yet it learns
 the lift about twice as fast, and neither a larger trust region, an exact CG solve, a smaller initial std nor
 PPO's critic step size closed the gap (docs/results.md). What is left of PPO's update is that it takes many small

@@ -1,4 +1,4 @@
-"""The shipped agents (trained_agents/, exported by benchmarks/convergence.py agents) do what the docs say."""
+"""The shipped agents (trained_agents/, exported by `python -m benchmarks.convergence agents`) do what the docs say."""
 
 import json
 import re
