@@ -101,6 +101,18 @@ PY
 step "the zoo extra, for the trpo-plus command"
 "$BIN/pip" install -q --no-compile "$WHEEL[zoo]"
 
+step "README quick start with the recipe (make_model), shortened rollouts"
+"$BIN/python" - <<'PY'
+import gymnasium
+
+from sb3_trpo_plus import make_model
+
+env_id = "Grasper3D-v7" if "Grasper3D-v7" in gymnasium.registry else "Grasper3D-v6"
+model = make_model(env_id, seed=0, n_steps=100)  # the recipe's envs, wrappers and normalisation
+model.learn(2_000, progress_bar=False)
+print(f"make_model: {env_id}, {model.n_envs} envs, {model.num_timesteps} steps")
+PY
+
 step "trpo-plus enjoy on a shipped agent"
 "$BIN/trpo-plus" enjoy --env Reacher2D-v1 --folder "$REPO/trained_agents" --no-render -n 100
 
