@@ -53,10 +53,13 @@ class RunFileError(ValueError):
 
 # ---------------------------------------------------------------------------------------------- YAML
 class RunConfigLoader(yaml.SafeLoader):
-    """``yaml.SafeLoader`` that also reads rl-zoo3's ``!!python/object/apply:collections.OrderedDict``.
+    """``yaml.SafeLoader`` that also reads the three Python tags rl-zoo3 writes, as data.
 
-    rl-zoo3 dumps ``config.yml`` and ``args.yml`` as ordered dicts; that tag builds an ``OrderedDict`` from
-    its list of ``[key, value]`` pairs. Every other Python tag stays refused, as in ``SafeLoader``.
+    ``!!python/object/apply:collections.OrderedDict`` (``config.yml`` and ``args.yml`` are ordered dicts) builds an
+    ``OrderedDict`` from its list of ``[key, value]`` pairs; ``!!python/tuple`` a tuple (``info_keywords``);
+    ``!!python/name:`` one of a fixed set of classes (activation functions such as
+    ``torch.nn.modules.activation.Tanh``, SB3's feature extractors, torch optimizers), looked up, never imported
+    by name. Every other Python tag stays refused, as in ``SafeLoader``.
     """
 
 
@@ -72,7 +75,24 @@ def _construct_ordered_dict(loader: RunConfigLoader, node: yaml.Node) -> Ordered
     return OrderedDict((key, value) for key, value in pairs)
 
 
+def _construct_tuple(loader: RunConfigLoader, node: yaml.Node) -> tuple:
+    if not isinstance(node, yaml.SequenceNode):
+        raise yaml.constructor.ConstructorError(None, None, "tuple: expected a list", node.start_mark)
+    return tuple(loader.construct_sequence(node, deep=True))
+
+
+def _construct_known_class(loader: RunConfigLoader, suffix: str, node: yaml.Node) -> type:
+    known = _known_classes()
+    if suffix not in known:
+        raise yaml.constructor.ConstructorError(
+            None, None, f"python/name:{suffix} is none of the classes a config may name", node.start_mark
+        )
+    return known[suffix]
+
+
 RunConfigLoader.add_constructor(ORDERED_DICT_TAG, _construct_ordered_dict)
+RunConfigLoader.add_constructor("tag:yaml.org,2002:python/tuple", _construct_tuple)
+RunConfigLoader.add_multi_constructor("tag:yaml.org,2002:python/name:", _construct_known_class)
 
 
 def load_run_yaml(path: str | Path) -> Any:
@@ -86,7 +106,7 @@ def load_run_yaml(path: str | Path) -> Any:
         return yaml.load(text, Loader=RunConfigLoader)  # a SafeLoader subclass
     except yaml.constructor.ConstructorError as error:
         raise RunFileError(
-            f"{path}: refused: {error.problem} (only plain YAML data and rl-zoo3's OrderedDict are read)"
+            f"{path}: refused: {error.problem} (read: plain YAML, rl-zoo3's OrderedDict and tuples, known classes)"
         ) from None
     except yaml.YAMLError as error:
         raise RunFileError(f"{path}: malformed YAML: {error}") from None

@@ -192,7 +192,7 @@ class ShardedSubprocVecEnv(VecEnv):
         envs = ", ".join(f"{i} ({self._env_ids[i]})" for i in self._shards[worker])
         pid = f" (pid {process.pid})" if process is not None else ""
         return RolloutWorkerError(
-            f"ShardedSubprocVecEnv worker {worker}{pid} died, {cause}, while stepping envs {envs} [{type(error).__name__}]"
+            f"ShardedSubprocVecEnv worker {worker}{pid} stepping envs {envs} died: {cause} [{type(error).__name__}]"
         )
 
     @property
@@ -327,7 +327,7 @@ def worker_failure(venv: VecEnv | None, error: BaseException, env_ids: list[str]
     inner.waiting = False
     names = env_ids or [f"env {i}" for i in range(inner.num_envs)]
     described = "; ".join(
-        f"worker {i} (pid {inner.processes[i].pid}) stepping env {i} ({names[i]}), {_death_cause(inner.processes[i])}"
+        f"worker {i} (pid {inner.processes[i].pid}) stepping env {i} ({names[i]}) died: {_death_cause(inner.processes[i])}"
         for i in dead
     )
-    return RolloutWorkerError(f"SubprocVecEnv rollout worker died: {described} [{type(error).__name__}]")
+    return RolloutWorkerError(f"SubprocVecEnv {described} [{type(error).__name__}]")
