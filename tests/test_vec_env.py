@@ -51,3 +51,22 @@ def test_trains_trpo_plus() -> None:
 def test_rejects_no_envs() -> None:
     with pytest.raises(ValueError, match="at least one"):
         ShardedSubprocVecEnv([])
+
+
+def test_workers_ignore_sigint_and_a_dead_one_is_named() -> None:
+    import os
+    import signal
+
+    from sb3_trpo_plus.vec_env import RolloutWorkerError
+
+    env = make_vec_env("Reacher2D-v0", n_envs=4, vec_env_cls=ShardedSubprocVecEnv, vec_env_kwargs=dict(n_workers=2))
+    try:
+        env.reset()
+        os.kill(env.processes[0].pid, signal.SIGINT)  # a terminal's Ctrl-C reaches the workers too
+        env.step(np.zeros((4, 2), dtype=np.float32))
+        os.kill(env.processes[1].pid, signal.SIGKILL)
+        with pytest.raises(RolloutWorkerError, match=r"worker 1 \(pid \d+\) stepping envs 2 \(Reacher2D-v0\), 3 "):
+            env.step(np.zeros((4, 2), dtype=np.float32))
+    finally:
+        env.close()  # skips the dead worker
+    assert env.closed and not any(p.is_alive() for p in env.processes)
