@@ -43,8 +43,6 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
 ORDERED_DICT_TAG = "tag:yaml.org,2002:python/object/apply:collections.OrderedDict"
-# Where env / vec-env wrappers named in a config may come from (they are imported by name)
-WRAPPER_PACKAGES = ("gymnasium", "stable_baselines3", "sb3_contrib", "rl_zoo3", "grasp_envs", "sb3_trpo_plus")
 
 
 class RunFileError(ValueError):
@@ -178,7 +176,23 @@ def read_run_config(run_folder: str | Path, env_id: str | None = None, algo: str
     for key in ("policy_kwargs", "monitor_kwargs"):
         if isinstance(hyperparams.get(key), str):
             hyperparams[key] = _parse_kwargs_text(hyperparams[key], f"{config_path}: {key}", key)
+    _check_named_classes(hyperparams, config_path)
     return RunConfig(env_id, algo, hyperparams, env_kwargs, normalize_kwargs, stats_dir)
+
+
+def _check_named_classes(hyperparams: dict[str, Any], path: Path) -> None:
+    """Refuse a config whose ``env_wrapper``, ``vec_env_wrapper``, ``callback`` or ``policy`` names anything but a
+    class of that kind from a known package: rl-zoo3 imports and calls what these name."""
+    from sb3_trpo_plus.zoo import HyperparameterError, check_policy, check_wrappers
+
+    try:
+        for key in ("env_wrapper", "vec_env_wrapper", "callback"):
+            if hyperparams.get(key) is not None:
+                check_wrappers(hyperparams[key], f"{path}: {key}", base=key)
+        if "policy" in hyperparams:
+            check_policy(hyperparams["policy"], f"{path}: policy")
+    except HyperparameterError as error:
+        raise RunFileError(f"{error} (refused)") from None
 
 
 def validate_run_files(run_folder: str | Path, env_id: str | None = None) -> None:
@@ -496,22 +510,21 @@ def _rms_arrays(record: Any) -> tuple[Any, Any, Any]:
 
 
 # ---------------------------------------------------------------------------------------------- environments
-def _wrapper_class(hyperparams: dict[str, Any], key: str, base: type, where: Path) -> Callable | None:
-    """rl-zoo3's ``env_wrapper`` / ``vec_env_wrapper``, each name checked to be a wrapper class of a known package."""
+def _wrapper_class(hyperparams: dict[str, Any], key: str, where: Path) -> Callable | None:
+    """rl-zoo3's ``env_wrapper`` / ``vec_env_wrapper`` of a run, each name checked to be a wrapper class of a known
+    package (:func:`sb3_trpo_plus.zoo.check_wrappers`), the training aids left out (evaluation envs never get them)."""
     from rl_zoo3.utils import get_wrapper_class
+
+    from sb3_trpo_plus.zoo import HyperparameterError, check_wrappers, evaluation_wrappers
 
     value = hyperparams.get(key)
     if value is None:
         return None
-    for entry in value if isinstance(value, list) else [value]:
-        name = next(iter(entry)) if isinstance(entry, dict) else entry
-        if not isinstance(name, str) or not name.startswith(tuple(f"{p}." for p in WRAPPER_PACKAGES)):
-            raise RunFileError(f"{where}: {key} {name!r} refused: wrappers may come from {WRAPPER_PACKAGES} only")
-        module_name, _, class_name = name.rpartition(".")
-        candidate = getattr(importlib.import_module(module_name), class_name, None)
-        if not (isinstance(candidate, type) and issubclass(candidate, base)):
-            raise RunFileError(f"{where}: {key} {name!r} refused: not a {base.__name__} subclass")
-    return get_wrapper_class({key: value}, key)
+    try:
+        checked = check_wrappers(value, f"{where}: {key}", base=key)
+    except HyperparameterError as error:
+        raise RunFileError(f"{error} (refused)") from None
+    return get_wrapper_class({key: evaluation_wrappers(checked) if key == "env_wrapper" else checked}, key)
 
 
 def make_eval_env(
@@ -530,7 +543,7 @@ def make_eval_env(
     (``normalization``: read by :func:`load_normalization`, or a VecNormalize unpickled by the trusted path).
     """
     from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import VecEnvWrapper, VecFrameStack
+    from stable_baselines3.common.vec_env import VecFrameStack
 
     import grasp_envs  # noqa: F401  (registers our ids)
 
@@ -539,9 +552,9 @@ def make_eval_env(
     if render_mode is not None:
         kwargs["render_mode"] = render_mode
     spec = gym.spec(config.env_id)
-    wrapper = _wrapper_class(config.hyperparams, "env_wrapper", gym.Wrapper, where)
+    wrapper = _wrapper_class(config.hyperparams, "env_wrapper", where)
     env = make_vec_env(spec.make, n_envs=n_envs, seed=seed, wrapper_class=wrapper, env_kwargs=kwargs, vec_env_cls=DummyVecEnv)
-    vec_wrapper = _wrapper_class(config.hyperparams, "vec_env_wrapper", VecEnvWrapper, where)
+    vec_wrapper = _wrapper_class(config.hyperparams, "vec_env_wrapper", where)
     if vec_wrapper is not None:
         env = vec_wrapper(env)
     if config.normalize_kwargs is not None:

@@ -207,7 +207,7 @@ def enjoy(argv: Sequence[str]) -> dict[str, Any]:
         args.algo, args.env, folder, args.exp_id, args.load_best, args.seed, render=False, n_envs=args.n_envs,
         render_mode=None if args.no_render else "human", env_kwargs=_literal_kwargs(args.env_kwargs),
         load_checkpoint=checkpoint, load_last_checkpoint=args.load_last_checkpoint, norm_reward=args.norm_reward,
-        device=args.device, reseed_with_model_seed=False,
+        device=args.device,
     )  # fmt: skip
     returns: list[float] = []
     lengths: list[int] = []
@@ -304,15 +304,12 @@ def _load_trained(
     load_last_checkpoint: bool = False,
     norm_reward: bool = False,
     device: str = "cpu",
-    reseed_with_model_seed: bool = True,
 ) -> tuple[Any, Any, str]:
     """Agent and test env of an rl-zoo3 run (VecNormalize statistics and env kwargs restored), and the run folder.
 
     The weights-only path by default (:mod:`sb3_trpo_plus.agents`: nothing in the run is unpickled or evaluated);
     ``trust_pickle`` loads the full model with SB3. ``render`` makes the env render RGB frames.
-    ``reseed_with_model_seed``: seed the env with the model's training seed where it has one, in place of ``seed``,
-    as SB3's ``load(path, env=env)`` does (``set_random_seed`` seeds the env it is given); the success rates in
-    ``trained_agents/agents.json`` were measured that way. ``trpo-plus enjoy`` passes False and honours ``--seed``.
+    The env is seeded with ``seed`` (SB3's ``load(path, env=env)`` would reseed it with the model's training seed).
     """
     from huggingface_sb3 import EnvironmentName
     from rl_zoo3.utils import get_model_path
@@ -328,12 +325,6 @@ def _load_trained(
         render_mode="rgb_array" if render else render_mode, env_kwargs=env_kwargs, norm_reward=norm_reward,
         device=device,
     )  # fmt: skip
-    if reseed_with_model_seed:
-        from sb3_trpo_plus.agents import read_model_data
-
-        model_seed = read_model_data(model_path).get("seed")
-        if isinstance(model_seed, int):
-            env.seed(model_seed)
     return agent, env, log_path
 
 

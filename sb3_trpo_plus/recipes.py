@@ -7,15 +7,25 @@
 
 from __future__ import annotations
 
+import importlib
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from sb3_trpo_plus.zoo import ALGO_FILES, ZOO_DIR, HyperparameterError, algorithms, load_hyperparameters
+from sb3_trpo_plus.zoo import (
+    ALGO_FILES,
+    SCHEDULE_KEYS,
+    ZOO_DIR,
+    HyperparameterError,
+    algorithms,
+    check_wrappers,
+    load_hyperparameters,
+)
 
 if TYPE_CHECKING:
     from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
 # keys of a recipe that describe the environment or the run, not the algorithm's constructor
-_RUN_KEYS = ("n_timesteps", "n_envs", "policy", "normalize", "normalize_kwargs", "env_wrapper", "vec_env_wrapper",
+_RUN_KEYS = ("n_timesteps", "n_envs", "policy", "normalize", "env_wrapper", "vec_env_wrapper",
              "callback", "frame_stack", "monitor_kwargs", "env_kwargs")  # fmt: skip
 
 
@@ -32,32 +42,63 @@ def recipe(env_id: str, algo: str = "trpo_plus") -> dict[str, Any]:
 def make_model(env_id: str, algo: str = "trpo_plus", seed: int | None = None, **overrides: Any) -> OnPolicyAlgorithm:
     """The model of ``env_id``'s recipe, as rl-zoo3 builds it: ``n_envs`` seeded envs (``DummyVecEnv``) with the
     recipe's ``env_kwargs`` and ``env_wrapper`` (training aids included: these are training envs), Monitor with the
-    success flag, ``VecNormalize`` with the recipe's discount where it normalises, and the algorithm with the
-    recipe's hyperparameters, each of which ``overrides`` may replace (e.g. ``tensorboard_log="runs"``).
-    Train for the recipe's budget with ``model.learn(recipe(env_id, algo)["n_timesteps"])``."""
-    from rl_zoo3.utils import get_wrapper_class
+    success flag, ``VecNormalize`` with the algorithm's discount where the recipe normalises, and the algorithm with
+    the recipe's hyperparameters (``lin_<x>`` schedules as linear schedules from ``x``).
+
+    ``overrides`` replace any key of the recipe, run keys (``n_envs``, ``env_kwargs``, ``normalize``, ...) and
+    constructor arguments alike (e.g. ``tensorboard_log="runs"``). Train for the recipe's budget with
+    ``model.learn(recipe(env_id, algo)["n_timesteps"])``; the command also logs each reward term
+    (``sb3_trpo_plus.callbacks.RewardTermsCallback``, pass it to ``learn`` to do the same).
+    """
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecFrameStack, VecNormalize
 
-    params = dict(recipe(env_id, algo))
+    params = {**recipe(env_id, algo), **overrides}
     env = make_vec_env(
         env_id,
         n_envs=int(params.get("n_envs", 1)),
         seed=seed,
         env_kwargs=params.get("env_kwargs"),
-        wrapper_class=get_wrapper_class({"env_wrapper": params.get("env_wrapper")}),
+        wrapper_class=_wrapper_chain(params.get("env_wrapper"), "env_wrapper"),
         monitor_kwargs=params.get("monitor_kwargs"),
     )
-    vec_wrapper = get_wrapper_class({"vec_env_wrapper": params.get("vec_env_wrapper")}, "vec_env_wrapper")
+    vec_wrapper = _wrapper_chain(params.get("vec_env_wrapper"), "vec_env_wrapper")
     if vec_wrapper is not None:
-        env = vec_wrapper(env)  # type: ignore[assignment, arg-type]
+        env = vec_wrapper(env)
+    constructor = {key: _schedule(key, value) for key, value in params.items() if key not in _RUN_KEYS}
     normalize = params.get("normalize", False)
     if normalize:
         kwargs = dict(normalize) if isinstance(normalize, dict) else {}
-        if "gamma" in params:
-            kwargs.setdefault("gamma", params["gamma"])
+        if "gamma" in constructor:
+            kwargs["gamma"] = constructor["gamma"]  # as rl-zoo3: the returns are normalised with the agent's discount
         env = VecNormalize(env, **kwargs)
     if params.get("frame_stack"):
         env = VecFrameStack(env, int(params["frame_stack"]))
-    constructor = {key: value for key, value in params.items() if key not in _RUN_KEYS}
-    return algorithms()[algo](params["policy"], env, seed=seed, **{**constructor, **overrides})
+    return algorithms()[algo](params["policy"], env, seed=seed, **constructor)
+
+
+def _schedule(key: str, value: Any) -> Any:
+    """rl-zoo's ``lin_<x>`` text of a schedulable hyperparameter as SB3's linear schedule from ``x`` to 0."""
+    if key in SCHEDULE_KEYS and isinstance(value, str):
+        initial = float(value.removeprefix("lin_"))
+        return lambda progress_remaining: progress_remaining * initial
+    return value
+
+
+def _wrapper_chain(value: Any, key: str) -> Callable[[Any], Any] | None:
+    """rl-zoo's ``env_wrapper`` / ``vec_env_wrapper`` list as one callable, each name checked
+    (:func:`sb3_trpo_plus.zoo.check_wrappers`) before it is imported (rl-zoo3 need not be installed)."""
+    if value is None:
+        return None
+    wrappers = []
+    for entry in check_wrappers(value, key, base=key):
+        name, kwargs = next(iter(entry.items())) if isinstance(entry, dict) else (entry, {})
+        module_name, _, class_name = name.rpartition(".")
+        wrappers.append((getattr(importlib.import_module(module_name), class_name), kwargs))
+
+    def wrap(env: Any) -> Any:
+        for wrapper, kwargs in wrappers:
+            env = wrapper(env, **kwargs)
+        return env
+
+    return wrap

@@ -37,7 +37,6 @@ ZOO_KEYS: dict[str, tuple[type, ...]] = {
     "n_timesteps": (int, float),
     "policy": (str,),
     "normalize": (bool, str, dict),  # text is parsed as a literal dict(...), never evaluated
-    "normalize_kwargs": (dict,),
     "env_wrapper": (str, list, dict),
     "vec_env_wrapper": (str, list, dict),
     "callback": (str, list, dict),
@@ -167,7 +166,9 @@ def load_hyperparameters(path: str | Path, algo: str, env_ids: list[str] | None 
                 raise HyperparameterError(f"{where}: expected {names}, got {type(value).__name__} {value!r}")
             if key in SCHEDULE_KEYS and isinstance(value, str) and not SCHEDULE_PATTERN.match(value):
                 raise HyperparameterError(f"{where}: expected a number or a schedule 'lin_<value>', got {value!r}")
-            if key == "policy_kwargs":
+            if key == "policy":
+                value = check_policy(value, where)
+            elif key == "policy_kwargs":
                 value = parse_policy_kwargs(value, f"{path}: {env_id}")
             elif key in {"normalize", "monitor_kwargs"} and isinstance(value, str):
                 value = dict_text(value, f"{path}: {env_id}", key)  # rl-zoo3 would eval the text
@@ -220,13 +221,23 @@ def check_wrappers(value: Any, where: str, base: str = "env_wrapper") -> list[st
     return checked
 
 
+def check_policy(value: Any, where: str) -> str:
+    """A policy name that rl-zoo3 resolves without importing anything: one of the algorithms' aliases
+    (``MlpPolicy``, ``CnnPolicy``, ``MultiInputPolicy``); rl-zoo3 imports a dotted name's module."""
+    aliases = sorted({alias for algo in algorithms().values() for alias in algo.policy_aliases})
+    if not isinstance(value, str) or value not in aliases:
+        raise HyperparameterError(f"{where}: policy must be one of {aliases}, got {value!r}")
+    return value
+
+
 def evaluation_wrappers(value: Any) -> list[Any] | None:
     """``env_wrapper``'s entries without the training aids (wrapper classes with ``training_only = True``, such as
-    ``grasp_envs.wrappers.ScriptedStarts``): what evaluation and enjoy envs are wrapped with."""
+    ``grasp_envs.wrappers.ScriptedStarts``): what evaluation and enjoy envs are wrapped with. Each name is checked
+    (:func:`check_wrappers`) before it is imported."""
     if value is None:
         return None
     kept = []
-    for entry in value if isinstance(value, list) else [value]:
+    for entry in check_wrappers(value, "env_wrapper"):
         name = next(iter(entry)) if isinstance(entry, dict) else entry
         if isinstance(name, str):
             module_name, _, class_name = name.rpartition(".")
@@ -323,6 +334,15 @@ def _leave_training_aids_out_of_evaluation() -> None:
     _create_envs._evaluation_wrappers = True  # type: ignore[attr-defined]
     ExperimentManager._preprocess_hyperparams = _preprocess_hyperparams  # type: ignore[method-assign]
     ExperimentManager.create_envs = _create_envs  # type: ignore[method-assign]
-    for module in (zoo_utils, enjoy, record_video):
+    import rl_zoo3
+
+    modules = [zoo_utils, enjoy, record_video, rl_zoo3]
+    try:
+        from rl_zoo3 import push_to_hub
+
+        modules.append(push_to_hub)
+    except ImportError:  # pragma: no cover - its optional dependencies are missing
+        pass
+    for module in modules:
         if hasattr(module, "create_test_env"):
             module.create_test_env = _create_test_env  # type: ignore[attr-defined]

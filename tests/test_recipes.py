@@ -143,3 +143,55 @@ def test_make_model_builds_the_recipe_in_python() -> None:
         make_model("CartPole-v1")
     with pytest.raises(ValueError, match="algo must be one of"):
         recipe(RECOMMENDED_GRASPER, algo="sac")
+
+
+def test_shipped_recommended_agent_is_evaluated_without_training_aids() -> None:
+    """The shipped agent's config names the recipe's scripted starts; its evaluation env (the weights-only path of
+    ``trpo-plus enjoy``) leaves them out, so its success is measured from the task's own start states."""
+    from grasp_envs.wrappers import ScriptedStarts
+    from sb3_trpo_plus.agents import load_eval_agent
+
+    _, env = load_eval_agent(AGENT, RECOMMENDED_GRASPER, seed=0)
+    try:
+        inner = env.venv.envs[0]  # type: ignore[attr-defined]
+        while hasattr(inner, "env"):
+            assert not isinstance(inner, ScriptedStarts)
+            inner = inner.env
+    finally:
+        env.close()
+
+
+def test_recipe_policy_is_an_alias_never_an_import(tmp_path: Path) -> None:
+    from sb3_trpo_plus.zoo import load_hyperparameters
+
+    path = tmp_path / "bad.yml"
+    path.write_text("Reacher2D-v1:\n  n_timesteps: 1000\n  policy: os.system\n")
+    with pytest.raises(HyperparameterError, match="policy must be one of"):
+        load_hyperparameters(path, "trpo_plus")
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [("env_wrapper", "os.system"), ("callback", "subprocess.Popen"), ("vec_env_wrapper", "builtins.exec"), ("policy", "a.b")],
+)
+def test_a_run_config_naming_other_code_is_refused(tmp_path: Path, key: str, value: str) -> None:
+    """A downloaded run folder's config.yml names a function where rl-zoo3 expects a wrapper, callback or policy."""
+    from sb3_trpo_plus.agents import RunFileError, validate_run_files
+
+    run = tmp_path / "trpo_plus" / "Reacher2D-v1_1"
+    (run / "Reacher2D-v1").mkdir(parents=True)
+    config = {"policy": "MlpPolicy", "normalize": True, key: value}
+    (run / "Reacher2D-v1" / "config.yml").write_text(json.dumps(config))
+    with pytest.raises(RunFileError, match=f"config.yml: {key}.*refused"):
+        validate_run_files(run, "Reacher2D-v1")
+
+
+def test_make_model_overrides_run_keys_and_keeps_rl_zoos_discount_and_schedules() -> None:
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from sb3_trpo_plus import make_model
+
+    model = make_model("Reacher2D-v1", algo="ppo", seed=0, n_envs=2, gamma=0.9, learning_rate="lin_1e-3", n_steps=16)
+    env = model.get_env()
+    assert isinstance(env, VecNormalize) and env.num_envs == 2 and env.gamma == model.gamma == 0.9
+    assert model.lr_schedule(1.0) == pytest.approx(1e-3) and model.lr_schedule(0.5) == pytest.approx(5e-4)
