@@ -54,13 +54,13 @@ def normalized_training_envs(env_id: str, variant: str, seed: int) -> Any:
 
     config = model_settings(env_id, variant)
     env = training_envs(env_id, variant, seed)
-    return VecNormalize(env, gamma=config.kwargs.get("gamma", 0.99)) if config.normalize else env
+    return VecNormalize(env, **config.normalize_kwargs) if config.normalize_kwargs is not None else env
 
 
 def evaluation_env(env_id: str, variant: str, seed: int, normalization: Any = None) -> Any:
     """One monitored evaluation env of ``variant`` seeded with ``seed``: its env kwargs, no training wrappers; with
-    ``normalization`` (a vecnormalize.pkl path or the statistics) a VecNormalize that neither updates them nor scales
-    rewards."""
+    ``normalization`` (a vecnormalize.pkl path, or the training VecNormalize: ``sb3_trpo_plus.evaluation``'s forms)
+    a VecNormalize with the run's settings that neither updates the statistics nor scales rewards."""
     import grasp_envs  # noqa: F401
     from sb3_trpo_plus.evaluation import evaluation_env as make_evaluation_env
 

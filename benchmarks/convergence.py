@@ -29,9 +29,9 @@ DIR/<timesteps> is the study's folder as it stood then (``--out`` of ``report``,
 evaluates every kept checkpoint past ``--after`` (and each run's own last one) again, the study's way (deterministic
 policy, VecNormalize statistics of the checkpoint, the env seeded once) on more episodes from another reset seed,
 into <out>/<env>/<variant>/seed<k>/reevaluation.csv; a checkpoint already evaluated so is not evaluated again.
-``reevaluate --confirm --after 2000000`` runs the Grasper's reading of the target after 2M (docs/benchmarks.md) end to
-end: every checkpoint on 100 episodes from reset seed 20,000, then each one below the target on 200 more from each of
-30,000 and 40,000 (the 500 pooled decide), and prints each run's verdict.
+``reevaluate --confirm --after 2000000`` runs the confirmation protocol (docs/results.md, "The target, seed by seed")
+end to end: every checkpoint past 2M on 100 episodes from reset seed 20,000, then each one below the target on 200
+more from each of 30,000 and 40,000 (the 500 pooled decide), and prints each run's verdict.
 """
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     again.add_argument("--timesteps", type=int, nargs="+", default=None, help="only the checkpoints at these")
     again.add_argument(
         "--confirm", action="store_true",
-        help=f"the Grasper's reading: {REEVALUATION_EPISODES} episodes from {REEVALUATION_SEED}, then "
+        help=f"the confirmation protocol: {REEVALUATION_EPISODES} episodes from {REEVALUATION_SEED}, then "
         f"{CONFIRMATION_EPISODES} from each of {', '.join(map(str, CONFIRMATION_SEEDS))} where those fall below the target",
     )  # fmt: skip
     for command in (run, job, report, agents, again):

@@ -58,7 +58,9 @@ def main() -> None:
     parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict of further env kwargs")
     parser.add_argument("--model-kwargs", type=json.loads, default={}, help="JSON dict of further algorithm kwargs")
     parser.add_argument("--tag", default="", help="names the run when --env-kwargs/--model-kwargs are given")
-    parser.add_argument("--init-from", default=None, help="start from a convergence.py job folder's policy")
+    parser.add_argument(
+        "--init-from", default=None, help="start from the policy in a `python -m benchmarks.convergence job` folder"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--steps", type=int, default=3_000_000)
     parser.add_argument("--chunk", type=int, default=250_000)
@@ -91,7 +93,7 @@ def main() -> None:
     if model_path.exists() and stats_path.exists():
         env = VecNormalize.load(str(stats_path), venv)
         model = algo.load(model_path, env=env)
-    elif args.init_from:  # continue a convergence.py job's policy (its model.zip, vecnormalize.pkl) here
+    elif args.init_from:  # continue a `python -m benchmarks.convergence job`'s policy (its model.zip, vecnormalize.pkl)
         env = VecNormalize.load(str(Path(args.init_from) / "vecnormalize.pkl"), venv)
         model = algo.load(Path(args.init_from) / "model.zip", env=env)
         model.num_timesteps = 0

@@ -4,9 +4,9 @@ Every evaluation runs the deterministic policy with the VecNormalize statistics 
 variant's evaluation env (its env kwargs, no training wrappers), the env seeded once (``sb3_trpo_plus.evaluation``
 with ``seed_every_episode=False``): during training EVAL_EPISODES episodes from reset seed EVAL_SEED, the same at
 every chunk and in every run. ``reevaluate`` evaluates kept checkpoints again on more episodes from other reset
-seeds, and ``confirm`` runs the Grasper's reading of the target after 2M (docs/benchmarks.md): every checkpoint on
-REEVALUATION_EPISODES from REEVALUATION_SEED, then each one below the target on CONFIRMATION_EPISODES more from each
-of CONFIRMATION_SEEDS, all of them pooled deciding.
+seeds, and ``confirm`` runs the confirmation protocol, which decides whether a Grasper run holds its target after 2M
+(docs/results.md, "The target, seed by seed"): every checkpoint on REEVALUATION_EPISODES from REEVALUATION_SEED, then
+each one below the target on CONFIRMATION_EPISODES more from each of CONFIRMATION_SEEDS, all of them pooled deciding.
 """
 
 from __future__ import annotations
@@ -137,7 +137,7 @@ def reevaluate(
 
 def confirm(kept: Path, out: Path, envs: Sequence[str], variants: Sequence[str], seeds: Sequence[int], after: int,
             jobs: int) -> dict[tuple[str, str, int], bool | None]:  # fmt: skip
-    """The Grasper's reading end to end: every checkpoint past ``after`` on REEVALUATION_EPISODES from
+    """The confirmation protocol end to end: every checkpoint past ``after`` on REEVALUATION_EPISODES from
     REEVALUATION_SEED, then each one those leave undecided (below the env's target) on CONFIRMATION_EPISODES from each
     of CONFIRMATION_SEEDS; evaluations already recorded are not run again. Prints and returns each run's verdict."""
     reevaluate(kept, out, envs, variants, seeds, after, REEVALUATION_EPISODES, REEVALUATION_SEED, jobs)
@@ -152,7 +152,7 @@ def confirm(kept: Path, out: Path, envs: Sequence[str], variants: Sequence[str],
         verdicts[env_id, variant, seed] = verdict = seed_verdict(rows, checkpoints, target)
         word = "undecided" if verdict is None else "pass" if verdict else "FAIL"
         first = {t: _protocol_runs(at(rows, t)).get(REEVALUATION_SEED) for t in checkpoints}
-        below = [t for t, row in first.items() if row is not None and row["eval_success"] < target]  # now or earlier
+        below = [t for t, row in first.items() if row is not None and row["eval_success"] < target]  # by this call or another
         confirmed = ", ".join(f"{t}: {pooled_success(at(rows, t)):.3f}" for t in below)
         episodes = REEVALUATION_EPISODES + len(CONFIRMATION_SEEDS) * CONFIRMATION_EPISODES
         print(f"{env_id} {variant} seed{seed}: {word} ({len(checkpoints)} checkpoints past {after}; below {target} on "
@@ -178,9 +178,10 @@ def reevaluations(
 
 
 def checkpoint_verdict(rows: Sequence[dict[str, float]], target: float) -> bool | None:
-    """The Grasper's reading at one checkpoint, from its re-evaluations: at or above ``target`` on REEVALUATION_EPISODES
-    episodes from REEVALUATION_SEED or, where those fall below it, on them and CONFIRMATION_EPISODES from each of
-    CONFIRMATION_SEEDS together (successes pooled); None while an evaluation it needs has not been run."""
+    """The confirmation protocol's verdict on one checkpoint, from its re-evaluations: at or above ``target`` on
+    REEVALUATION_EPISODES episodes from REEVALUATION_SEED or, where those fall below it, on them and
+    CONFIRMATION_EPISODES from each of CONFIRMATION_SEEDS together (successes pooled); None while an evaluation it
+    needs has not been run."""
     runs = _protocol_runs(rows)
     if REEVALUATION_SEED not in runs:
         return None
@@ -204,7 +205,7 @@ def pooled_success(rows: Sequence[dict[str, float]]) -> float:
 
 
 def seed_verdict(rows: Sequence[dict[str, float]], checkpoints: Sequence[float], target: float) -> bool | None:
-    """The Grasper's reading for one run, from its re-evaluations: False if a checkpoint of ``checkpoints`` fails it,
-    True if every one passes, None while one is undecided."""
+    """The confirmation protocol's verdict on one run, from its re-evaluations: False if a checkpoint of
+    ``checkpoints`` fails it, True if every one passes, None while one is undecided."""
     verdicts = [checkpoint_verdict(at(rows, t), target) for t in checkpoints]
     return False if False in verdicts else None if None in verdicts else True

@@ -52,7 +52,13 @@ DIAGNOSIS_PAIRS = [
 ]  # fmt: skip
 AGENT_EPISODES = 20
 BOOTSTRAP_SEED = 0
-AGENT_SEED = 20_000  # held out from training (seeds < 100,000 + n_envs) and from the study's evaluations (10,000)
+# the reset seed of the shipped agents' AGENT_EPISODES-episode evaluation, also the first reset seed of the 100-episode
+# re-evaluations (protocol.REEVALUATION_SEED); not a reset seed of training (a run's seed + 100,000 per resumption,
+# + the env's index) nor of the study's 20-episode evaluations (protocol.EVAL_SEED)
+AGENT_SEED = 20_000
+# the keys export_agents writes in an agents.json entry; merged_entry keeps the entry's others (added by hand)
+EXPORTED_KEYS = ("variant", "seed", "timesteps", "study_eval_success", "success_rate", "mean_reward", "episodes",
+                 "eval_seed", "platform", "env_kwargs", "video")  # fmt: skip
 
 
 def complete_runs(out: Path, env_id: str, variant: str) -> dict[int, list[dict[str, float]]]:
@@ -206,18 +212,18 @@ def target_table(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]
                 )
             verdicts = {s: seed_verdict(read_reevaluation(out, env_id, variant, s), [r["timesteps"] for r in seeds[s][n:]],
                                         target) for s, n in split.items()}  # fmt: skip
-            reading_cell = "—"
+            confirmation_cell = "—"  # the confirmation protocol's verdicts
             if any(verdict is not None for verdict in verdicts.values()):
-                reading_cell = _seed_count({s for s, v in verdicts.items() if v}, len(seeds)) + " pass"
+                confirmation_cell = _seed_count({s for s, v in verdicts.items() if v}, len(seeds)) + " pass"
                 for word, value in (("fail", False), ("not yet decided", None)):
                     if which := [str(s) for s in sorted(verdicts) if verdicts[s] is value]:
-                        reading_cell += f"; {word}: {', '.join(which)}"
+                        confirmation_cell += f"; {word}: {', '.join(which)}"
             cells += [
                 _seed_count(stayed, len(seeds)),
                 _seed_count(reached & stayed, len(seeds)),
                 f"{passed} of {sum(map(len, after.values()))}",
                 again_cell,
-                reading_cell,
+                confirmation_cell,
             ]
         lines.append("| " + " | ".join(cells) + " |")
     return lines
@@ -370,25 +376,30 @@ def agents_section(manifest_path: Path) -> list[str]:
     if not manifest_path.exists():
         return []
     manifest = json.loads(manifest_path.read_text())
+    more = f"success_rate_{REEVALUATION_EPISODES}"  # a re-evaluation on more episodes from the same seed, where run
+    counts = f"{AGENT_EPISODES} and on {REEVALUATION_EPISODES}" if any(more in e for e in manifest.values()) else ""
     lines = [
         "### Trained agents",
         "",
         f"`trained_agents/trpo_plus/<env>_1/`: the best TRPOPlus run of each env (highest final evaluation success),"
-        f" re-evaluated on {AGENT_EPISODES} deterministic episodes from reset seed {AGENT_SEED} (held out from"
-        " training and from the study's evaluations). `trpo-plus enjoy --env <env>` runs them (it falls back to"
-        " `trained_agents/` when `logs/` has no run); `trpo-plus record-video --env <env>` films them. An agent"
-        " trained on an env made with env kwargs keeps them in its `config.yml`, and both commands make the env"
-        " with them, as rl-zoo3's enjoy does.",
+        f" re-evaluated on {counts or AGENT_EPISODES} deterministic episodes of an env seeded once with {AGENT_SEED}"
+        f" (not a seed the study's {EVAL_EPISODES}-episode evaluations use). `trpo-plus enjoy --env <env>` runs them"
+        " (it falls back to `trained_agents/` when `logs/` has no run); `trpo-plus record-video --env <env>` films"
+        " them. An agent trained on an env made with env kwargs keeps them in its `config.yml`, and both commands make"
+        " the env with them, as rl-zoo3's enjoy does.",
         "",
-        "| env | env kwargs | variant | seed | steps | success rate | mean return | video |",
-        "|---|---|---|---|---|---|---|---|",
+        f"| env | env kwargs | variant | seed | steps | success rate ({AGENT_EPISODES} episodes) | mean return |"
+        + (f" success rate ({REEVALUATION_EPISODES} episodes) |" if counts else "")
+        + " video |",
+        "|---" * (9 if counts else 8) + "|",
     ]
     for env_id, entry in sorted(manifest.items()):
         video = f"[mp4]({entry['video']})" if "video" in entry else "—"
         kwargs = ", ".join(f"`{key}={value!r}`" for key, value in entry.get("env_kwargs", {}).items()) or "—"
+        again = (f" {entry[more]:.2f} |" if more in entry else " — |") if counts else ""
         lines.append(
             f"| `{env_id}` | {kwargs} | {LABELS[entry['variant']]} | {entry['seed']} | {entry['timesteps']:,} | "
-            f"{entry['success_rate']:.2f} | {entry['mean_reward']:.2f} | {video} |"
+            f"{entry['success_rate']:.2f} | {entry['mean_reward']:.2f} |{again} {video} |"
         )
     for env_id, entry in sorted(manifest.items()):
         if "video" in entry:
@@ -448,7 +459,7 @@ def export_agents(out: Path, envs: list[str], folder: Path) -> None:
         from sb3_trpo_plus import TRPOPlus
 
         model = TRPOPlus.load(source / "model.zip", device="cpu")
-        model.__dict__.pop("train", None)  # the study's wrapper of train(), pickled by older runs
+        model.__dict__.pop("train", None)  # a checkpoint may hold the runner's wrapper of train(): not the agent's
         model.save(run / f"{env_id}.zip", exclude=["train", "rollout_memory"])  # small: no replay memory
         params = hyperparameters(VARIANTS[variant], env_id)
         config = {key: value for key, value in params.items() if key not in {"callback", "monitor_kwargs", "policy_kwargs"}}
@@ -456,7 +467,7 @@ def export_agents(out: Path, envs: list[str], folder: Path) -> None:
             shutil.copyfile(source / "vecnormalize.pkl", run / env_id / "vecnormalize.pkl")
         (run / env_id / "config.yml").write_text(json.dumps(config, indent=1))  # JSON is YAML
         result = evaluate_agent(folder, env_id)
-        manifest[env_id] = {
+        exported = {
             "variant": variant,
             "seed": seed,
             "timesteps": BUDGETS[env_id],
@@ -468,13 +479,29 @@ def export_agents(out: Path, envs: list[str], folder: Path) -> None:
             "platform": platform.platform(),
         }
         if config.get("env_kwargs"):
-            manifest[env_id]["env_kwargs"] = config["env_kwargs"]
+            exported["env_kwargs"] = config["env_kwargs"]
         print(f"{env_id}: {variant} seed {seed}: success {result['success_rate']:.2f}, return {result['mean_reward']:.2f}")
         from sb3_trpo_plus.cli import record_video
 
         video = ROOT / "docs" / "videos" / f"{env_id}.mp4"
         record_video(["--env", env_id, "-f", str(folder), "--exp-id", "1", "--seed", str(AGENT_SEED), "-o", str(video)])
-        manifest[env_id]["video"] = f"videos/{video.name}"
+        exported["video"] = f"videos/{video.name}"
+        manifest[env_id] = merged_entry(manifest.get(env_id, {}), exported)
         partial = manifest_path.with_suffix(".json.tmp")  # after every agent, atomically
         partial.write_text(json.dumps(manifest, indent=1) + "\n")
         partial.replace(manifest_path)
+
+
+def merged_entry(entry: dict[str, Any], exported: dict[str, Any]) -> dict[str, Any]:
+    """An agents.json entry updated with an export: the EXPORTED_KEYS of ``exported`` replace the entry's (its
+    env_kwargs dropped where the export has none). Every other key of the entry (added by hand, e.g. ``held_out``) is
+    kept in its place where the export is the entry's run (variant, seed, timesteps), and dropped, with a note, where it
+    is another run: it describes the agent it replaces."""
+    run = ("variant", "seed", "timesteps")
+    merged = {key: value for key, value in entry.items() if key not in EXPORTED_KEYS or key in exported}
+    added = [key for key in merged if key not in EXPORTED_KEYS]
+    if added and any(entry.get(key) != exported[key] for key in run):
+        print(f"another run than the one agents.json describes: dropped its {', '.join(added)}")
+        merged = {key: value for key, value in merged.items() if key in EXPORTED_KEYS}
+    merged.update(exported)
+    return merged

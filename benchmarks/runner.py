@@ -64,12 +64,12 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path, keep: P
         overrides = VARIANTS[variant].hyperparameters
         branch = {key: overrides[key] for key in BRANCH_SETTINGS if key in overrides} or None
         model = algo_class.load(model_path, env=env, device="cpu", custom_objects=branch)
-        model.__dict__.pop("train", None)  # older checkpoints pickled the wrapper of train() below
+        model.__dict__.pop("train", None)  # a checkpoint that holds a wrapper of train() (as below) resumes unwrapped
     else:
-        env = VecNormalize(venv, gamma=config.kwargs.get("gamma", 0.99)) if config.normalize else venv
+        env = VecNormalize(venv, **config.normalize_kwargs) if config.normalize_kwargs is not None else venv
         model = algo_class(config.policy, env, seed=seed, device="cpu", verbose=0, **config.kwargs)
-    statistics = env.obs_rms if config.normalize else None  # type: ignore[attr-defined]
-    eval_env = evaluation_env(env_id, variant, EVAL_SEED, statistics)
+    # the training VecNormalize: the evaluation env takes its settings and shares its observation statistics
+    eval_env = evaluation_env(env_id, variant, EVAL_SEED, env if config.normalize else None)
     diagnostics: dict[str, list[float]] = {name: [] for name in DIAGNOSTICS}
     overshoots: list[float] = []  # each TRPO update's KL over its trust region's radius
     original_train = model.train
@@ -100,8 +100,6 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path, keep: P
         model.learn(min(chunk, steps - done), callback=recorder, reset_num_timesteps=False)
         seconds += time.perf_counter() - start
         done = int(model.num_timesteps)
-        if config.normalize:
-            eval_env.obs_rms = env.obs_rms  # type: ignore[attr-defined]
         eval_return, eval_success = evaluate(model, eval_env, EVAL_EPISODES)
         returns = [r for r, _, _ in recorder.episodes]
         successes = [float(s) for _, s, _ in recorder.episodes]

@@ -66,7 +66,8 @@ def atomic_replace(write: Callable[[Path], Any], path: Path) -> None:
 
 
 def append_row(path: Path, row: dict[str, Any]) -> None:
-    """Append a row to a progress.csv; a CSV written by an older version (fewer columns) is first rewritten with blanks."""
+    """Append a row to a progress.csv; a CSV whose header is not COLUMNS (one without some of them) is first rewritten
+    with COLUMNS, the missing cells blank."""
     cell = {key: ("" if isinstance(v, float) and not np.isfinite(v) else v) for key, v in row.items()}
     if path.exists():
         with path.open() as file:

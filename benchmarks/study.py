@@ -188,17 +188,37 @@ class ModelSettings:
 
     kwargs: dict[str, Any]
     n_envs: int
-    normalize: bool
+    normalize_kwargs: dict[str, Any] | None  # the training VecNormalize's kwargs; None: no VecNormalize
     policy: str
     env_kwargs: dict[str, Any]
+
+    @property
+    def normalize(self) -> bool:
+        """Whether the training envs are wrapped in a VecNormalize."""
+        return self.normalize_kwargs is not None
 
 
 def settings(variant: Variant, env_id: str) -> ModelSettings:
     """The zoo settings of ``variant`` on ``env_id``, split as the study builds its envs and model."""
     params = hyperparameters(variant, env_id)
-    n_envs, normalize = int(params.pop("n_envs", 1)), bool(params.pop("normalize", False))
+    n_envs, normalize = int(params.pop("n_envs", 1)), params.pop("normalize", False)
     policy = params.pop("policy")
     for key in ("n_timesteps", "callback", "monitor_kwargs", "normalize_kwargs", "env_wrapper", "vec_env_wrapper"):
         params.pop(key, None)
     env_kwargs = dict(params.pop("env_kwargs", None) or {})  # the evaluation envs' (and, under the wrappers, training)
-    return ModelSettings(params, n_envs, normalize, policy, env_kwargs)
+    return ModelSettings(params, n_envs, normalize_kwargs(normalize, params), policy, env_kwargs)
+
+
+def normalize_kwargs(normalize: bool | dict[str, Any], params: Mapping[str, Any]) -> dict[str, Any] | None:
+    """VecNormalize's kwargs for the zoo's ``normalize`` (true, false or a mapping of VecNormalize kwargs such as
+    ``{norm_obs: false, norm_reward: true}``), as rl-zoo3 makes them: the model's ``gamma`` (where it sets one) is the
+    discount of the reward normalization; None without VecNormalize."""
+    if isinstance(normalize, Mapping):
+        kwargs = dict(normalize)
+    elif normalize:
+        kwargs = {}
+    else:
+        return None
+    if "gamma" in params:
+        kwargs["gamma"] = params["gamma"]
+    return kwargs

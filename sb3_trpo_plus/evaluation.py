@@ -8,12 +8,12 @@
 
 The env is one monitored env (a ``VecEnv`` of one); with a run's VecNormalize statistics its observations are
 normalized as in training, and the statistics stay fixed (``training=False``); rewards are not normalized, so the
-returns are the env's.
+returns are the env's. A ``vecnormalize.pkl`` is read as data (:func:`sb3_trpo_plus.agents.load_normalization`):
+a file that would run code when unpickled is refused.
 """
 
 from __future__ import annotations
 
-import pickle
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +24,8 @@ import numpy as np
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+
+from sb3_trpo_plus.agents import NormalizationStats, load_normalization
 
 
 @dataclass(frozen=True)
@@ -53,28 +55,41 @@ class EvaluationResult:
 def evaluation_env(
     env_id: str,
     env_kwargs: dict[str, Any] | None = None,
-    normalization: str | Path | RunningMeanStd | None = None,
+    normalization: str | Path | NormalizationStats | VecNormalize | RunningMeanStd | None = None,
     seed: int | None = None,
     wrapper_class: Callable[[gym.Env], gym.Env] | None = None,
 ) -> VecEnv:
     """One monitored env of ``env_id`` made with ``env_kwargs``, for ``evaluate_agent``.
 
-    :param normalization: the observation statistics of a run trained with VecNormalize: the path of its saved
-        ``vecnormalize.pkl``, or the statistics themselves (``VecNormalize.obs_rms``). They normalize the observations
-        and are never updated; rewards stay the env's. ``None``: observations as the env gives them.
+    :param normalization: the VecNormalize statistics of a run trained with VecNormalize. They are never updated, and
+        rewards stay the env's. One of: the path of the run's ``vecnormalize.pkl``, read as data by
+        :func:`sb3_trpo_plus.agents.load_normalization` (a file that carries code is refused with
+        :class:`~sb3_trpo_plus.agents.RunFileError`); the statistics read so (``NormalizationStats``); the training
+        ``VecNormalize`` itself, whose observation statistics the env shares, so that it follows them as training
+        updates them. Each of these applies its saved ``norm_obs``, ``clip_obs`` and ``epsilon``. Or only the
+        observation statistics (``VecNormalize.obs_rms``), with VecNormalize's defaults (``clip_obs`` 10, ``epsilon``
+        1e-8). ``None``: observations as the env gives them.
     :param seed: seed of the env (its action space and first reset); ``evaluate_agent`` seeds the resets itself
-    :param wrapper_class: a Gymnasium wrapper for the env, inside the Monitor (not the training-only aids)
+    :param wrapper_class: a Gymnasium wrapper of the env (not the training-only aids). As in SB3's ``make_vec_env``,
+        it wraps the Monitor, so the Monitor's returns are the env's rewards before the wrapper changes them.
     """
     env = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=env_kwargs, wrapper_class=wrapper_class)
     if normalization is None:
         return env
+    if isinstance(normalization, str | Path):
+        normalization = load_normalization(normalization)
+    if isinstance(normalization, NormalizationStats):
+        return normalization.wrap(env, training=False, norm_reward=False)
+    if isinstance(normalization, VecNormalize):
+        normalized = VecNormalize(
+            env, training=False, norm_obs=normalization.norm_obs, norm_reward=False, clip_obs=normalization.clip_obs,
+            gamma=normalization.gamma, epsilon=normalization.epsilon, norm_obs_keys=normalization.norm_obs_keys,
+        )  # fmt: skip
+        if normalization.norm_obs:
+            normalized.obs_rms = normalization.obs_rms
+        return normalized
     normalized = VecNormalize(env, training=False, norm_reward=False)
-    saved: Any = normalization
-    if not isinstance(normalization, RunningMeanStd):
-        with Path(normalization).open("rb") as file:
-            saved = pickle.load(file)  # a VecNormalize (SB3 pickles it whole, without its env)
-        normalized.clip_obs, normalized.epsilon = saved.clip_obs, saved.epsilon
-    statistics: Any = saved if isinstance(saved, RunningMeanStd) else saved.obs_rms
+    statistics: Any = normalization  # a RunningMeanStd; mypy infers obs_rms as the Dict-space form, a dict of them
     normalized.obs_rms = statistics
     return normalized
 

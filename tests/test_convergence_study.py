@@ -18,7 +18,8 @@ from benchmarks import builders, convergence, protocol, report, runner, runs, st
 from benchmarks.study import VARIANTS, StudyError, Variant  # noqa: E402
 
 SNAPSHOT = ROOT / "benchmarks" / "results" / "convergence" / "variants.json"
-# the Grasper's constructor options that the training wrapper ScriptedStarts replaced, as the snapshot names them
+# ScriptedStarts' settings -> the names the snapshot gives them: the Grasper3D constructor options of the settings the
+# committed runs were trained with
 SCRIPTED_START_KWARGS = {"probability": "scripted_start_prob", "steps": "scripted_start_steps",
                          "hold_height": "scripted_start_hold_height"}  # fmt: skip
 
@@ -49,7 +50,8 @@ def _as_snapshot(variant: Variant) -> dict:
 
 def test_the_variants_are_those_the_committed_runs_were_trained_with() -> None:
     """study.yml builds every variant, in the same order, with the settings of the snapshot taken from the Python
-    tables that trained the committed runs (variants.json: their scripted starts as the Grasper's former kwargs)."""
+    tables that trained the committed runs (variants.json: their scripted starts as the Grasper3D constructor options
+    of the settings the committed runs were trained with)."""
     snapshot = json.loads(SNAPSHOT.read_text())
     assert list(VARIANTS) == list(snapshot["variants"])
     for name, variant in VARIANTS.items():
@@ -129,20 +131,21 @@ def test_the_benchmarks_import_each_other_without_a_circle() -> None:
 
 
 @pytest.mark.parametrize(
-    ("suffix", "gamma", "env_id", "settings_until_then"),
+    ("suffix", "gamma", "env_id", "same_settings_as"),
     [
-        ("g099", 0.99, "Reacher2D-v1", "Reacher2D-v0"),  # Reacher2D-v1's rows with Reacher2D-v0's settings
-        ("g0995", 0.995, "WallReacher3D-v0", "Reacher3D-v0"),  # WallReacher3D-v0's rows with the thesis' 3D settings
+        ("g099", 0.99, "Reacher2D-v1", "Reacher2D-v0"),  # Reacher2D-v1's runs with Reacher2D-v0's settings
+        ("g0995", 0.995, "WallReacher3D-v0", "Reacher3D-v0"),  # WallReacher3D-v0's runs with the thesis' 3D settings
     ],
 )
 @pytest.mark.parametrize("name", study.STUDY_VARIANTS)
-def test_former_discount_variants_are_the_study_variants_with_the_old_discount(
-    name: str, suffix: str, gamma: float, env_id: str, settings_until_then: str
+def test_discount_variants_are_the_study_variants_with_another_discount(
+    name: str, suffix: str, gamma: float, env_id: str, same_settings_as: str
 ) -> None:
-    """An env's rows from before its zoo entry took gamma 0.98 differ from today's settings in the discount only."""
-    variant, former = VARIANTS[name], VARIANTS[f"{name}_{suffix}"]
-    assert (former.algo, former.hyperparameters) == (variant.algo, {**variant.hyperparameters, "gamma": gamma})
-    assert study.hyperparameters(former, env_id) == study.hyperparameters(variant, settings_until_then)
+    """<variant>_g099 and <variant>_g0995 set gamma 0.99 or 0.995 where the env's zoo entry sets 0.98, and differ from
+    the zoo settings in the discount only: they record the env's runs with that discount."""
+    variant, other = VARIANTS[name], VARIANTS[f"{name}_{suffix}"]
+    assert (other.algo, other.hyperparameters) == (variant.algo, {**variant.hyperparameters, "gamma": gamma})
+    assert study.hyperparameters(other, env_id) == study.hyperparameters(variant, same_settings_as)
     assert study.hyperparameters(variant, env_id)["gamma"] == 0.98
 
 
@@ -198,6 +201,51 @@ def test_evaluation_env_kwargs_are_the_variants_own_for_training_and_evaluation(
         env.close()
 
 
+def test_the_zoos_normalize_gives_the_vecnormalize_kwargs_with_the_models_gamma() -> None:
+    """``normalize`` as rl-zoo3 takes it: true, false, or a mapping of VecNormalize kwargs; the model's gamma (where
+    the zoo sets one) is the reward normalization's discount."""
+    assert study.normalize_kwargs(True, {"gamma": 0.98}) == {"gamma": 0.98}
+    assert study.normalize_kwargs(True, {}) == {}
+    assert study.normalize_kwargs(False, {"gamma": 0.98}) is None
+    assert study.normalize_kwargs({"norm_obs": False, "gamma": 0.9}, {"gamma": 0.98}) == {"norm_obs": False, "gamma": 0.98}
+    plain = builders.model_settings("Reacher2D-v1", "plain")
+    assert plain.normalize and plain.normalize_kwargs == {"gamma": 0.98}
+
+
+def test_a_normalize_mapping_reaches_the_training_and_the_evaluation_vecnormalize(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A zoo ``normalize: {clip_obs: 5.0, norm_reward: true}`` makes the runner's and the diagnostic scripts'
+    training VecNormalize with it; the job's evaluation env, in memory and from the saved statistics, clips the
+    observations at 5 and leaves the rewards the env's."""
+    from sb3_trpo_plus.agents import load_normalization
+
+    zoo = study.hyperparameters
+    normalize = {"clip_obs": 5.0, "norm_reward": True}
+    monkeypatch.setattr(study, "hyperparameters", lambda variant, env_id: {**zoo(variant, env_id), "normalize": normalize})
+    config = builders.model_settings("Reacher2D-v1", "plain")
+    assert config.normalize_kwargs == {**normalize, "gamma": config.kwargs["gamma"]}
+    training = builders.normalized_training_envs("Reacher2D-v1", "plain", seed=0)
+    assert (training.clip_obs, training.norm_reward, training.gamma) == (5.0, True, config.kwargs["gamma"])
+    training.close()
+    made = []
+
+    def evaluation_env(*args: object) -> object:
+        made.append(builders.evaluation_env(*args))  # type: ignore[arg-type]
+        return made[-1]
+
+    monkeypatch.setattr(runner, "evaluation_env", evaluation_env)
+    monkeypatch.setitem(study.BUDGETS, "Reacher2D-v1", 2048)
+    runner.run_job("Reacher2D-v1", "plain", 0, 2048, tmp_path)  # one rollout of 8 x 256
+    folder = runs.job_folder(tmp_path, "Reacher2D-v1", "plain", 0)
+    saved = load_normalization(folder / "vecnormalize.pkl")
+    assert (saved.clip_obs, saved.norm_reward, saved.gamma) == (5.0, True, config.kwargs["gamma"])
+    from_file = builders.evaluation_env("Reacher2D-v1", "plain", 0, folder / "vecnormalize.pkl")
+    for env in (made[0], from_file):
+        assert (env.clip_obs, env.norm_reward, env.training) == (5.0, False, False)
+    from_file.close()
+
+
 @pytest.mark.parametrize("name", sorted(name for name, variant in VARIANTS.items() if variant.train_wrappers))
 def test_training_wrappers_are_accepted_by_the_env(name: str) -> None:
     wrap = builders.train_wrapper_class(name)
@@ -219,6 +267,38 @@ def test_export_skips_a_finished_run_without_its_checkpoint(tmp_path: Path, caps
     assert "warm seed 3 (0.90)" in printed
     assert "no finished TRPOPlus run with a checkpoint" in printed
     assert not agents.exists()
+
+
+def test_an_export_merges_into_the_agents_entry(capsys: pytest.CaptureFixture[str]) -> None:
+    """``agents`` replaces the keys it writes and keeps those added by hand (a held-out evaluation) while it ships the
+    same run; for another run it drops them, since they describe the agent it replaces."""
+    entry = json.loads((ROOT / "trained_agents" / "agents.json").read_text())["Grasper3D-v7"]
+    assert "held_out" in entry
+    exported = {key: entry[key] for key in report.EXPORTED_KEYS if key in entry} | {"success_rate": 0.5, "platform": "x"}
+    merged = report.merged_entry({**entry, "env_kwargs": {"start_pose": "ready"}}, exported)
+    assert merged == {**entry, "success_rate": 0.5, "platform": "x"}
+    assert list(merged) == [*entry, "platform"]  # the entry's keys in their places, a new one last
+    other = report.merged_entry(entry, {**exported, "seed": entry["seed"] + 1})
+    assert set(other) == set(exported) and other["seed"] == entry["seed"] + 1
+    assert "dropped its held_out, success_rate_100, mean_reward_100" in capsys.readouterr().out
+    assert report.merged_entry({}, exported) == exported
+
+
+def test_the_agents_table_shows_the_100_episode_evaluation_where_the_manifest_has_one(tmp_path: Path) -> None:
+    entry = {"variant": "warm", "seed": 1, "timesteps": 1_000_000, "success_rate": 0.95, "mean_reward": 3.0}
+    manifest = tmp_path / "agents.json"
+    manifest.write_text(json.dumps({"Reacher3D-v1": entry}))
+    lines = report.agents_section(manifest)
+    assert "re-evaluated on 20 deterministic episodes of an env seeded once with 20000" in lines[2]
+    assert lines[4:7] == [
+        "| env | env kwargs | variant | seed | steps | success rate (20 episodes) | mean return | video |",
+        "|---|---|---|---|---|---|---|---|",
+        "| `Reacher3D-v1` | — | TRPOPlus + warm start | 1 | 1,000,000 | 0.95 | 3.00 | — |",
+    ]
+    manifest.write_text(json.dumps({"Reacher3D-v1": {**entry, "success_rate_100": 0.93}}))
+    lines = report.agents_section(manifest)
+    assert "re-evaluated on 20 and on 100 deterministic episodes" in lines[2]
+    assert lines[6] == "| `Reacher3D-v1` | — | TRPOPlus + warm start | 1 | 1,000,000 | 0.95 | 3.00 | 0.93 | — |"
 
 
 def test_zero_start_solver_starts_at_zero_and_draws_nothing() -> None:
@@ -440,7 +520,7 @@ def test_kept_checkpoints_are_the_study_as_it_stood_after_each_chunk(
         convergence.main([*again, "--timesteps", "4096", "--episodes", "4"])
 
 
-def test_confirm_runs_the_graspers_reading_on_the_checkpoints_it_leaves_undecided(
+def test_confirm_runs_the_confirmation_protocol_on_the_checkpoints_it_leaves_undecided(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """``reevaluate --confirm`` (protocol shrunk to 2 episodes, then 3 from each of two seeds; target 0.5): a checkpoint
@@ -528,7 +608,7 @@ def test_target_table_counts_the_seeds_that_reach_the_target_and_hold_it(tmp_pat
 
 
 def test_checkpoint_verdict_reads_100_episodes_then_500() -> None:
-    """The Grasper's reading at one checkpoint, by hand: 100 episodes from reset seed 20,000 decide at or above 90 %;
+    """The confirmation protocol at one checkpoint, by hand: 100 episodes from reset seed 20,000 decide at or above 90 %;
     below it, those and 200 from each of 30,000 and 40,000, pooled (seed 4 at 2.8M: 88 + 191 + 187 = 466 of 500)."""
 
     def rows(*runs: tuple[int, int, float]) -> list[dict[str, float]]:

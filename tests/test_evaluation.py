@@ -1,5 +1,7 @@
 """sb3_trpo_plus.evaluation: seeded episodes, fixed VecNormalize statistics, the env's own returns and successes."""
 
+import os
+import pickle
 from pathlib import Path
 
 import gymnasium as gym
@@ -10,6 +12,7 @@ from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecNormalize
 
 import grasp_envs  # noqa: F401  (registers the envs)
+from sb3_trpo_plus.agents import RunFileError, load_normalization
 from sb3_trpo_plus.evaluation import evaluate_agent, evaluation_env
 
 ENV_ID = "Reacher2D-v1"
@@ -86,6 +89,77 @@ def test_vecnormalize_statistics_normalize_the_observations_and_stay_fixed(tmp_p
     assert result.returns[0] == pytest.approx(total, abs=1e-5)  # the env's rewards, not normalized
     np.testing.assert_array_equal(env.obs_rms.mean, np.full_like(statistics.mean, 0.1))
     assert env.obs_rms.count == 7.0
+
+
+def _saved_run(path: Path, **normalize_kwargs: float | bool) -> RunningMeanStd:
+    """A run's vecnormalize.pkl with ``normalize_kwargs`` and observation statistics mean 0.1, var 4; returns them."""
+    training = VecNormalize(make_vec_env(ENV_ID, n_envs=1), **normalize_kwargs)  # type: ignore[arg-type]
+    statistics = RunningMeanStd(shape=training.observation_space.shape)
+    statistics.mean, statistics.var = np.full_like(statistics.mean, 0.1), np.full_like(statistics.var, 4.0)
+    if training.norm_obs:
+        training.obs_rms = statistics
+    training.save(str(path))
+    return statistics
+
+
+@pytest.mark.parametrize("source", ["path", "statistics", "training VecNormalize"])
+def test_the_runs_clip_obs_and_epsilon_apply(tmp_path: Path, source: str) -> None:
+    path = tmp_path / "vecnormalize.pkl"
+    _saved_run(path, clip_obs=0.5, epsilon=0.25)
+    normalization = {"path": path, "statistics": load_normalization(path), "training VecNormalize": None}[source]
+    if normalization is None:
+        normalization = VecNormalize.load(str(path), make_vec_env(ENV_ID, n_envs=1))
+    env = evaluation_env(ENV_ID, normalization=normalization)
+    assert isinstance(env, VecNormalize) and (env.clip_obs, env.epsilon, env.training, env.norm_reward) == (
+        0.5, 0.25, False, False
+    )  # fmt: skip
+    policy = Recorder()
+    evaluate_agent(policy, env, n_episodes=1, seed=3)
+    observations, _, _ = _episode(3)
+    expected = np.clip((np.array(observations) - 0.1) / np.sqrt(4.0 + 0.25), -0.5, 0.5)
+    np.testing.assert_allclose(policy.observations, expected, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("saved", [False, True])
+def test_a_run_that_did_not_normalize_observations_gets_the_envs_own(tmp_path: Path, saved: bool) -> None:
+    """VecNormalize(norm_obs=False) (rl-zoo3's ``normalize: "dict(norm_obs=False, norm_reward=True)"``)."""
+    path = tmp_path / "vecnormalize.pkl"
+    _saved_run(path, norm_obs=False, norm_reward=True)
+    normalization = path if saved else VecNormalize.load(str(path), make_vec_env(ENV_ID, n_envs=1))
+    env = evaluation_env(ENV_ID, normalization=normalization)
+    assert isinstance(env, VecNormalize) and not env.norm_obs and not env.norm_reward
+    policy = Recorder()
+    result = evaluate_agent(policy, env, n_episodes=1, seed=3)
+    observations, total, _ = _episode(3)
+    np.testing.assert_allclose(policy.observations, observations, rtol=1e-6)
+    assert result.returns[0] == pytest.approx(total, abs=1e-5)
+
+
+class RunsACommand:
+    """Unpickled, it would run ``touch <mark>``: what a downloaded vecnormalize.pkl can carry."""
+
+    def __init__(self, mark: Path) -> None:
+        self.mark = mark
+
+    def __reduce__(self) -> tuple:
+        return os.system, (f"touch {self.mark}",)
+
+
+@pytest.mark.parametrize("where", ["the whole file", "inside a VecNormalize"])
+def test_a_vecnormalize_pickle_that_runs_code_is_refused_and_runs_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, where: str
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    mark, path = tmp_path / "MARK", tmp_path / "vecnormalize.pkl"
+    if where == "the whole file":
+        path.write_bytes(pickle.dumps(RunsACommand(mark)))
+    else:
+        training = VecNormalize(make_vec_env(ENV_ID, n_envs=1))
+        training.payload = RunsACommand(mark)  # type: ignore[attr-defined]
+        training.save(str(path))
+    with pytest.raises(RunFileError, match=r"refused the global (posix|os|nt)\.system"):
+        evaluation_env(ENV_ID, normalization=path)
+    assert not mark.exists()  # pickle.load would have made it
 
 
 def test_one_env_and_at_least_one_episode() -> None:
