@@ -501,6 +501,11 @@ class TRPOPlus(TRPO):
         progress_bar: bool = False,
     ) -> tuple[int, BaseCallback]:
         reset = reset_num_timesteps or self._last_obs is None
+        states, self._rng_states = self._rng_states, None
+        if states and not reset_num_timesteps:  # resuming a loaded run: its generators continue where it was saved
+            th.set_rng_state(states["torch"])
+            np.random.set_state(states["numpy"])
+            random.setstate(states["python"])
         result = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
         vec_normalize = self.get_vec_normalize_env()
         if reset or self._last_original_obs is None or self._episode_timesteps is None:
@@ -889,7 +894,8 @@ class TRPOPlus(TRPO):
 
         The random generators' states are saved too, so that ``load`` + ``learn`` continues a run exactly.
         """
-        self._rng_states = {
+        pending = self._rng_states  # a loaded run not resumed yet: its own states, not this program's
+        self._rng_states = pending or {
             "torch": th.get_rng_state(),
             "numpy": np.random.get_state(),
             "python": random.getstate(),
@@ -923,7 +929,7 @@ class TRPOPlus(TRPO):
                 if os.path.exists(tmp_name):
                     os.unlink(tmp_name)
         finally:
-            self._rng_states = None
+            self._rng_states = pending
 
     @classmethod
     def load(  # type: ignore[override]
@@ -936,7 +942,8 @@ class TRPOPlus(TRPO):
         force_reset: bool = True,
         **kwargs: Any,
     ) -> SelfTRPOPlus:
-        """Load a model; restores the replay memory, the warm-start step and the random generators' states.
+        """Load a model with its replay memory, warm-start step and random generators' states (restored when
+        ``learn(..., reset_num_timesteps=False)`` resumes the run, not before).
 
         Unpickles parts of the zip: load only files you trust (``sb3_trpo_plus.agents`` reads a policy as data).
         A truncated or corrupted file raises ``ValueError`` naming it and what failed.
@@ -950,12 +957,8 @@ class TRPOPlus(TRPO):
             where = path if isinstance(path, str | pathlib.Path) else "the model stream"
             cause = f"{type(error).__name__}: {error}"
             raise ValueError(f"{where}: cannot load the model (truncated or corrupted?): {cause}") from error
-        states = model._rng_states
-        if states:
-            th.set_rng_state(states["torch"])
-            np.random.set_state(states["numpy"])
-            random.setstate(states["python"])
-        model._rng_states = None
+        # the run's random generators' states stay with the model until learn(reset_num_timesteps=False) resumes it
+        # (_setup_learn); until then the program's generators are as SB3's load leaves them (seeded with model.seed)
         if model._last_obs is None:
             model._last_original_obs = None
         return model

@@ -337,3 +337,17 @@ def test_predict_deterministic_after_load(tmp_path: pathlib.Path) -> None:
     obs = np.array([0.01, -0.02, 0.03, 0.0], dtype=np.float32)
     assert model.predict(obs, deterministic=True)[0] == loaded.predict(obs, deterministic=True)[0]
     th.testing.assert_close(model.policy.state_dict()["action_net.weight"], loaded.policy.state_dict()["action_net.weight"])
+
+
+def test_load_seeds_as_sb3_and_resuming_restores_the_runs_generators(tmp_path: pathlib.Path) -> None:
+    """Loading a model seeds the global generators with the model's seed, as SB3's load does; the run's own saved
+    states come back only when ``learn(reset_num_timesteps=False)`` resumes it, also after a second save."""
+    model = TRPOPlus("MlpPolicy", "Pendulum-v1", seed=7, **TINY).learn(64)
+    model.save(tmp_path / "m.zip")
+    saved_next = np.random.random()  # what the run's numpy generator gives next
+    loaded = TRPOPlus.load(tmp_path / "m.zip", env=make_vec_env("Pendulum-v1"), force_reset=False)
+    assert np.random.random() == np.random.RandomState(7).random()  # SB3's set_random_seed(model.seed)
+    loaded.save(tmp_path / "again.zip")  # a loaded run saved again keeps its own states
+    resumed = TRPOPlus.load(tmp_path / "again.zip", env=make_vec_env("Pendulum-v1"), force_reset=False)
+    resumed._setup_learn(64, reset_num_timesteps=False)
+    assert np.random.random() == saved_next
