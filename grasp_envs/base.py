@@ -71,7 +71,7 @@ class ArmEnv(MujocoEnv, utils.EzPickle):
         observation_dim: int,
         **kwargs: Any,
     ):
-        if not isinstance(frame_skip, int | np.integer) or frame_skip < 1:
+        if isinstance(frame_skip, bool) or not isinstance(frame_skip, int | np.integer) or frame_skip < 1:
             raise ValueError(f"frame_skip must be an integer >= 1, got {frame_skip!r}")
         observation_space = Box(low=-np.inf, high=np.inf, shape=(observation_dim,), dtype=np.float64)
         MujocoEnv.__init__(

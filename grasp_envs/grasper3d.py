@@ -68,9 +68,10 @@ class Grasper3DEnv(ArmEnv):
     r"""
     ## Description
     Reacher3D's arm (hanging from the ceiling, shoulder at the origin, floor at z = -0.2 m) plus a forearm roll hinge
-    and a two-part claw (thesis 5.2.3): each half is a hinge about the forearm's z axis (range ±40°) carrying four
-    capsules (inner/outer, top/bottom, radius 6 mm); an equality constraint keeps the left half at minus the right
-    half. The claw must grasp a 24 mm cube that rests on the floor and lift it at least 0.05 m.
+    and a two-part claw (thesis 5.2.3): each half is a hinge about the forearm's z axis (range ±40°; with
+    `claw="servo"` closing stops at 2°: `claw_right` in [-40°, 2°], `claw_left` in [-2°, 40°]) carrying four capsules
+    (inner/outer, top/bottom, radius 6 mm); an equality constraint keeps the left half at minus the right half. The
+    claw must grasp a 24 mm cube that rests on the floor and lift it at least 0.05 m.
 
     `gymnasium.make("Grasper3D-v7")` is the recommended version: the defaults below. `Grasper3D-v0` is the thesis'
     task; `-v1` to `-v6` are the design steps that made it learnable (Version History), each a preset of the options.
@@ -92,9 +93,11 @@ class Grasper3DEnv(ArmEnv):
     command $c$.
 
     The claw command $c$ with `claw="servo"` (default): a position servo on `claw_right` aims at the angle
-    $0.4 c - 0.3$ rad (kp 10 N m/rad, force limited to 5 N m), so $c = 0$ holds the claw half open (34 mm between the
+    $0.4 c - 0.3$ rad (kp 10 N m/rad, force limited to 5 N m), so $c = 0$ holds the claw half open (33 mm between the
     tips, the cube is 24 mm), $c = -1$ opens it fully (-40°) and $c = 1$ closes it. With `claw_rate` $r$, each step's
-    claw action moves the servo's target by $r c$ rad instead (within [-0.7, 0.1]; the target is not observed).
+    claw action moves the servo's target by $r c$ rad instead (within [-0.7, 0.1], starting at the claw's angle after
+    the reset; the target is not observed). With `claw="torque"` and `control="grip_velocity"`, $c$ is the claw
+    motor's command, clipped to [-0.5, 0.5] (gear 100: at most 50 N m).
 
     ## Observation Space
     `Box(-inf, inf, (N,), float64)`. `observation="task"` (default): N = 32, the rows of this table:
@@ -178,9 +181,10 @@ class Grasper3DEnv(ArmEnv):
     | 37 | cube z axis z | unitless | `cube_rotation` |
 
     `claw="torque"` is the thesis' 50 N m claw motor (`grasper3d.xml`). With `cube_rotation`, the cube's orientation
-    is observed. A row whose option is off (`observe_claw_torque=False`, `cube_rotation=None`) is left out; the rows after it
-    move up. The task-space rows are those of Gymnasium Robotics' Fetch, which observes no joints: two arm
-    configurations that hold the claw in the same place look the same.
+    is observed. A row whose option is off (`observe_claw_torque=False`, or `None` with `claw="torque"`;
+    `cube_rotation=None`) is left out; the rows after it move up. The task-space rows are those of Gymnasium
+    Robotics' Fetch, which observes no joints: two arm configurations that hold the claw in the same place look the
+    same.
 
     ## Rewards
     Computed after the physics step; every term is in `info` as `reward_<term>`.
@@ -194,15 +198,16 @@ class Grasper3DEnv(ArmEnv):
       the claw sites (straddled); `"grip"`: $e = \lVert p_{grip} - p_{cube} \rVert$
     - `reward_grasp` $= w_{grasp} \cdot n / 8$ with $n$ the claw capsules touching the cube (0..8),
       `reward_grasp_weight` (4): the thesis' contact shaping, bounded and smaller than the lift terms
-    - `reward_lift` $= w_{lift} \min(h / 0.05, 1)$ while grasped, `reward_lift_weight` (4); $h$ is the height of the
-      cube's bottom face above the floor, measured from its geom
+    - `reward_lift` $= w_{lift} \min(\max(h, 0) / h_{lift}, 1)$ while grasped, `reward_lift_weight` (4); $h$ is the
+      height of the cube's bottom face above the floor, measured from its geom, $h_{lift}$ = `lift_height` (0.05 m)
     - `reward_hold` $= w_{hold}$ while the task is solved (see Episode End), `reward_hold_weight` (4)
     - `reward_ctrl` $= -w_{ctrl} \lVert a \rVert^2$, `reward_control_weight` (0.1 in this mode)
     - `reward_floor` $= -w_{floor}$ while a claw capsule touches the floor, `reward_floor_weight` (1): an open claw
       pressed onto the floor straddles the cube but cannot close (its tips swing towards the floor)
-    - `reward_squeeze` $= w_{squeeze} \min(\max(\tau, 0) / 0.5, 1)$ while grasped, with $\tau$ the claw servo's torque
-      (N m; `squeeze_torque` 0.5), `reward_squeeze_weight` (2): a firm grip, one that the policy's own exploration
-      noise on the claw command does not open when the arm rises
+    - `reward_squeeze` $= w_{squeeze} \min(\max(\tau, 0) / \tau_{squeeze}, 1)$ while grasped, with $\tau$ the claw
+      servo's torque (N m) and $\tau_{squeeze}$ = `squeeze_torque` (0.5 N m), `reward_squeeze_weight` (2 with
+      `claw="servo"`, 0 with `"torque"`): a firm grip, one that the policy's own exploration noise on the claw
+      command does not open when the arm rises
 
     `reward_mode="thesis"`: the thesis' reward, with its bugs fixed (after the physics step, contacts by geom name,
     height from the cube geom):
@@ -211,33 +216,46 @@ class Grasper3DEnv(ArmEnv):
       - \lVert p_{left} - p_{cube} \rVert + \lVert p_{left} - p_{right} \rVert$
     - `reward_ctrl` $= -w_{ctrl} \lVert a \rVert^2$ (1 in this mode)
     - `reward_contact` = number of claw capsules touching the cube (0..8)
-    - `reward_floor` = minus the number of bottom claw capsules touching the floor (0..4)
-    - `reward_claw_collision` = minus the number of claw-claw contacts (at most 2), only while at most 4 capsules
-      touch the cube
-    - `reward_lift` $= 1000 + 1000 h$ once $h \ge 0.05$ m with more than 3 capsules on the cube; the episode ends
+    - `reward_floor` = minus the number of contacts between the four bottom claw capsules and the floor (a capsule
+      lying on the floor makes two, so it can exceed 4)
+    - `reward_claw_collision` = minus the number of contacts between the claw halves, counted up to 2, only while at
+      most 4 capsules touch the cube (always 0 with `claw="servo"`, whose halves do not collide)
+    - `reward_lift` $= 1000 + 1000 h$ on every step with $h \ge$ `lift_height` (0.05 m) and more than 3 capsules on
+      the cube; with `terminate_on_success` (the default in this mode) the episode ends there
 
-    `info` also holds `cube_height` (m) and `claw_cube_contacts`.
+    `info` also holds `cube_height` (m), `claw_cube_contacts` (capsules touching the cube, 0..8), `is_success` and
+    `unstable`.
 
     ## Starting State
     Arm in `start_pose`: `"ready"` (default) the upper arm 30° up and the forearm pointing down, the grip 8.7 cm out
-    along +x and 7 cm above the cube's top; `"stretched"` horizontal along +x (the thesis'). Claw closed, joint noise
-    $\mathcal{U}(-s, s)$ with $s$ = `reset_noise_scale` (0.1 rad), velocities $\mathcal{U}(-0.005, 0.005)$. The cube
-    rests on the floor, its edges along the world axes, uniform in the disc of radius 0.1 m under the shoulder.
+    along +x and 7 cm above the plane of the cube's top face; `"stretched"` horizontal along +x (the thesis'). Each of
+    the five arm joint angles gets noise $\mathcal{U}(-s, s)$ with $s$ = `reset_noise_scale` (0.1 rad). The claw angle
+    `claw_right` is drawn from $\mathcal{U}(-s, s)$ about 0 (closed: the tips 4 mm apart), `claw_left` set to minus it. With
+    `claw="torque"` every draw lies within the ±40° range. With `claw="servo"` the model limits `claw_right` to
+    [-40°, 2°], so a draw above 2° (0.035 rad: about a third of the resets at $s$ = 0.1) starts past the limit, and
+    the first observation shows that angle; from the first step on MuJoCo's soft limit constraint pushes the claw
+    back: with the claw command 0 (the servo aiming at -0.3 rad) it is inside the limit after one or two steps, with
+    the full closing command 1 the limit alone brings it to within 0.2° of 2° in about five steps (measured on the
+    first 40 seeded resets of `Grasper3D-v7`, 15 past the limit). Velocities $\mathcal{U}(-0.005, 0.005)$ on every
+    degree of freedom (each claw half drawn on its own) but the cube's three slides, which start at rest; with
+    `cube_rotation` the cube's turning joint gets the same noise. The cube rests on the floor, its edges along the
+    world axes, uniform in the disc of radius 0.1 m under the shoulder.
 
     ## Episode End
-    Success (`info["is_success"]`): $h \ge 0.05$ m while grasped. Grasped, by `grasp_test`: `"per_axis"` (default)
-    both claw halves touch the cube and its centre projects inside the segment between the claw sites and lies at
-    most 2.5 cm from it along the forearm and along the hinge axis, each; `"between"` the same within 2 cm in all;
-    `"touch"` both halves touch the cube (which pressing it from above also gives).
-    Termination: when `terminate_on_success` (default: only in `reward_mode="thesis"`), on success, or in thesis
-    mode when the lift bonus is paid (height reached with more than 3 capsules on the cube); on `info["unstable"]`.
-    Truncation after 100 steps (`max_episode_steps`).
+    Success (`info["is_success"]`): $h \ge$ `lift_height` (0.05 m) while grasped. Grasped, by `grasp_test`:
+    `"per_axis"` (default) both claw halves touch the cube and its centre projects inside the segment between the
+    claw sites and lies at most 2.5 cm from it along the forearm and along the hinge axis, each; `"between"` the same
+    within 2 cm in all; `"touch"` both halves touch the cube (which pressing it from above also gives).
+    Termination: when `terminate_on_success` (default: only in `reward_mode="thesis"`), in staged mode on success,
+    in thesis mode when the lift bonus is paid (height reached with more than 3 capsules on the cube, whichever
+    `grasp_test`); always on `info["unstable"]`. Truncation after 100 steps (`max_episode_steps` of every registered
+    id, through Gymnasium's `TimeLimit`; the class itself never truncates).
 
     ## Arguments
     | Parameter | Default | Description |
     |-----------|---------|-------------|
     | `xml_file` | `None` | MuJoCo model; `None`: the model of `claw` |
-    | `frame_skip` | `2` | physics steps of 0.01 s per action |
+    | `frame_skip` | `2` | physics steps of 0.01 s per action (an int >= 1) |
     | `default_camera_config` | oblique view | camera of `render()` |
     | `claw` | `"servo"` | `"servo"`: a force-limited position servo (`grasper3d_v1.xml`, Version History v1); `"torque"` |
     | `control` | `"grip_velocity"` | `"grip_velocity"` or `"joint_torque"` (Action Space) |
@@ -245,7 +263,7 @@ class Grasper3DEnv(ArmEnv):
     | `max_grip_speed` | `0.4` | grip-site speed at an action of 1 (m/s; `grip_velocity` only) |
     | `claw_rate` | `None` | `None`: the claw action is the servo command; $r$: it moves the servo's target (Action Space) |
     | `observation` | `"task"` | `"task"` or `"joint"` (Observation Space) |
-    | `observe_claw_torque` | `True` | observe the claw servo's torque |
+    | `observe_claw_torque` | `None` | observe the claw servo's torque; `None`: with `claw="servo"` (needs it when `True`) |
     | `cube_rotation` | `"yaw"` | `None`: only slides; `"yaw"`: also turns about the vertical; `"free"`: about any axis |
     | `start_pose` | `"ready"` | the arm's pose before the reset noise: `"ready"` or `"stretched"` (Starting State) |
     | `reward_mode` | `"staged"` | `"staged"` or `"thesis"` |
@@ -256,12 +274,13 @@ class Grasper3DEnv(ArmEnv):
     | `reward_lift_weight` | `4.0` | weight of `reward_lift` (staged) |
     | `reward_hold_weight` | `4.0` | weight of `reward_hold` (staged) |
     | `reward_floor_weight` | `1.0` | weight of `reward_floor` (staged) |
-    | `reward_squeeze_weight` | `2.0` | weight of `reward_squeeze` (staged; needs `claw="servo"` when not 0) |
-    | `squeeze_torque` | `0.5` | claw servo torque at which `reward_squeeze` saturates (N m) |
+    | `reward_squeeze_weight` | `None` | weight of `reward_squeeze` (staged; not 0 needs the servo); `None`: 2 (servo) or 0 |
+    | `squeeze_torque` | `0.5` | claw servo torque at which `reward_squeeze` saturates (N m, > 0) |
     | `reward_control_weight` | `None` | weight of `reward_ctrl`; `None`: 0.1 (staged) or 1 (thesis) |
-    | `terminate_on_success` | `None` | end the episode on success; `None`: only in thesis mode |
-    | `reset_noise_scale` | `0.1` | half-width of the initial joint-angle noise (rad) |
-    | `lift_height` | `0.05` | height of the cube's bottom above the floor that counts as lifted (m) |
+    | `terminate_on_success` | `None` | end the episode on success (thesis: on the lift bonus); `None`: in thesis mode only |
+    | `reset_noise_scale` | `0.1` | half-width of the arm's and the claw's initial joint-angle noise (rad, >= 0) |
+    | `lift_height` | `0.05` | height of the cube's bottom above the floor that counts as lifted (m, > 0) |
+    | `**kwargs` | | passed on to Gymnasium's `MujocoEnv`: `render_mode`, `width`, `height`, `camera_id`, ... |
 
     Training aids are not options of the task: starting a share of the training episodes along the scripted grasp
     is the wrapper `grasp_envs.wrappers.ScriptedStarts`, applied to training envs only.
@@ -301,7 +320,7 @@ class Grasper3DEnv(ArmEnv):
         max_grip_speed: float = MAX_GRIP_SPEED,
         claw_rate: float | None = None,
         observation: str = "task",
-        observe_claw_torque: bool = True,
+        observe_claw_torque: bool | None = None,
         cube_rotation: str | None = "yaw",
         start_pose: str = "ready",
         reward_mode: str = "staged",
@@ -312,7 +331,7 @@ class Grasper3DEnv(ArmEnv):
         reward_lift_weight: float = 4.0,
         reward_hold_weight: float = 4.0,
         reward_floor_weight: float = 1.0,
-        reward_squeeze_weight: float = 2.0,
+        reward_squeeze_weight: float | None = None,
         squeeze_torque: float = SQUEEZE_TORQUE,
         reward_control_weight: float | None = None,
         terminate_on_success: bool | None = None,
@@ -330,17 +349,20 @@ class Grasper3DEnv(ArmEnv):
         _check_choice("reach_distance", reach_distance, REACH_DISTANCES)
         _check_choice("grasp_test", grasp_test, GRASP_TESTS)
         for name, flag in (("observe_claw_torque", observe_claw_torque), ("terminate_on_success", terminate_on_success)):
-            if not (isinstance(flag, bool) or (flag is None and name == "terminate_on_success")):
-                raise ValueError(f"{name} must be a bool{' or None' if name == 'terminate_on_success' else ''}, got {flag!r}")
-        if not max_grip_speed > 0:
-            raise ValueError(f"max_grip_speed must be positive, got {max_grip_speed!r}")
-        if claw_rate is not None and not claw_rate > 0:
-            raise ValueError(f"claw_rate must be positive or None, got {claw_rate!r}")
+            if not (flag is None or isinstance(flag, bool)):
+                raise ValueError(f"{name} must be a bool or None, got {flag!r}")
+        _check_amount("max_grip_speed", max_grip_speed)
+        if claw_rate is not None:
+            _check_amount("claw_rate", claw_rate, "positive number or None")
         if claw_rate is not None and (control != "grip_velocity" or claw != "servo"):
             raise ValueError("claw_rate moves the servo claw's target: it needs control='grip_velocity' and claw='servo'")
-        if not squeeze_torque > 0:
-            raise ValueError(f"squeeze_torque must be positive, got {squeeze_torque!r}")
-        if (reward_squeeze_weight or observe_claw_torque) and claw != "servo":
+        _check_amount("squeeze_torque", squeeze_torque)
+        _check_amount("lift_height", lift_height)
+        _check_amount("reset_noise_scale", reset_noise_scale, "non-negative number")
+        servo = claw == "servo"
+        observe_torque = servo if observe_claw_torque is None else observe_claw_torque
+        squeeze_weight = (2.0 if servo else 0.0) if reward_squeeze_weight is None else reward_squeeze_weight
+        if (squeeze_weight or observe_torque) and not servo:
             raise ValueError(
                 "reward_squeeze_weight and observe_claw_torque read the claw servo's torque: they need claw='servo'"
             )
@@ -362,7 +384,7 @@ class Grasper3DEnv(ArmEnv):
         self._claw_rate = claw_rate
         self._claw_target = CLAW_OPEN_TARGET
         self._observation = observation
-        self._observe_claw_torque = observe_claw_torque
+        self._observe_claw_torque = observe_torque
         self._cube_rotation = cube_rotation  # read while the base class builds the model
         self._reward_mode = reward_mode
         self._reach_distance_kind = reach_distance
@@ -372,7 +394,7 @@ class Grasper3DEnv(ArmEnv):
         self._reward_lift_weight = reward_lift_weight
         self._reward_hold_weight = reward_hold_weight
         self._reward_floor_weight = reward_floor_weight
-        self._reward_squeeze_weight = reward_squeeze_weight
+        self._reward_squeeze_weight = squeeze_weight
         self._squeeze_torque = float(squeeze_torque)
         thesis = reward_mode == "thesis"
         self._reward_control_weight = (1.0 if thesis else 0.1) if reward_control_weight is None else reward_control_weight
@@ -382,7 +404,7 @@ class Grasper3DEnv(ArmEnv):
         self._lift_bonus_paid = False
         self._contacts = {"right": 0, "left": 0, "floor": 0, "claw_claw": 0, "claw_floor": 0, "between": 0}
         observation_dim = 31 if observation == "joint" else 25
-        observation_dim += int(observe_claw_torque) + (6 if cube_rotation is not None else 0)
+        observation_dim += int(observe_torque) + (6 if cube_rotation is not None else 0)
         ArmEnv.__init__(self, xml_file or CLAWS[claw], frame_skip, default_camera_config, observation_dim, **kwargs)
         self._ids = self._named_ids()
         self._arm_qpos = np.array([self.model.joint(j).qposadr[0] for j in ARM_JOINTS])
@@ -639,6 +661,14 @@ def add_cube_rotation(spec: mujoco.MjSpec, cube_rotation: str = "yaw") -> None:
     spec.body("cube").add_joint(
         name=CUBE_ROTATION_JOINT, damping=CUBE_ROTATION_DAMPING, armature=0.0, **CUBE_ROTATIONS[cube_rotation]
     )
+
+
+def _check_amount(name: str, value: Any, kind: str = "positive number") -> None:
+    """Raise ``ValueError`` naming the option and the value unless it is a finite real number (a bool is not one) that
+    is > 0, or >= 0 when ``kind`` is ``"non-negative number"``."""
+    number = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+    if not (number and np.isfinite(value) and (value > 0 or (value == 0 and kind == "non-negative number"))):
+        raise ValueError(f"{name} must be a {kind}, got {value!r}")
 
 
 def _check_choice(name: str, value: Any, choices: tuple[Any, ...]) -> None:

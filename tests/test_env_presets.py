@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import inspect
+import re
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import pytest
+from gymnasium.wrappers import FlattenObservation, FrameStackObservation, NormalizeObservation, RecordEpisodeStatistics
+from stable_baselines3.common.monitor import Monitor
 
 import grasp_envs
 from grasp_envs.registration import PRESETS, RECOMMENDED_GRASPER
@@ -72,10 +75,30 @@ def test_no_env_class_inherits_another_version_of_its_task() -> None:
 
 
 def test_recommended_grasper_is_the_class_defaults() -> None:
-    assert gym.make(RECOMMENDED_GRASPER).unwrapped.spec.kwargs == PRESETS[RECOMMENDED_GRASPER].kwargs
+    """The recommended id and ``Grasper3DEnv()`` make the same env: each preset option is the class default, or a
+    ``None`` default that the claw resolves to it (``observe_claw_torque``, ``reward_squeeze_weight``); same spaces,
+    same observations and rewards for the same seed and actions."""
+    preset = gym.make(RECOMMENDED_GRASPER)
+    assert preset.unwrapped.spec.kwargs == PRESETS[RECOMMENDED_GRASPER].kwargs
     signature = inspect.signature(grasp_envs.Grasper3DEnv).parameters
     for option, value in PRESETS[RECOMMENDED_GRASPER].kwargs.items():
-        assert signature[option].default == value, option
+        assert signature[option].default in (value, None), option
+    default = grasp_envs.Grasper3DEnv()
+    assert default.observation_space == preset.observation_space and default.action_space == preset.action_space
+    np.testing.assert_array_equal(preset.reset(seed=3)[0], default.reset(seed=3)[0])
+    for action in np.random.default_rng(0).uniform(-1.0, 1.0, size=(20, 4)).astype(np.float32):
+        observation, reward, terminated, _, _ = preset.step(action)
+        default_observation, default_reward, default_terminated, _, _ = default.step(action)
+        np.testing.assert_array_equal(default_observation, observation)
+        assert (default_reward, default_terminated) == (reward, terminated)
+
+
+def test_torque_claw_leaves_the_servo_terms_out_by_default() -> None:
+    env = grasp_envs.Grasper3DEnv(claw="torque")
+    assert env.observation_space.shape == (31,)  # the recommended 32 rows less the claw servo's torque
+    env.reset(seed=0)
+    *_, info = env.step(env.action_space.sample())
+    assert info["reward_squeeze"] == 0.0
 
 
 @pytest.mark.parametrize(
@@ -85,14 +108,31 @@ def test_recommended_grasper_is_the_class_defaults() -> None:
         ({"control": "torque"}, "control must be one of"),
         ({"observation": "pixels"}, "observation must be one of"),
         ({"cube_rotation": "roll"}, "cube_rotation must be one of"),
-        ({"observe_claw_torque": "yes"}, "observe_claw_torque must be a bool"),
-        ({"claw": "torque", "control": "joint_torque"}, "need claw='servo'"),
+        ({"observe_claw_torque": "yes"}, "observe_claw_torque must be a bool or None, got 'yes'"),
+        ({"claw": "torque", "observe_claw_torque": True}, "need claw='servo'"),
+        ({"claw": "torque", "control": "joint_torque", "reward_squeeze_weight": 2.0}, "need claw='servo'"),
         ({"claw_rate": 0.1, "control": "joint_torque"}, "claw_rate"),
+        ({"lift_height": 0.0}, "lift_height must be a positive number, got 0.0"),
+        ({"lift_height": -0.05}, "lift_height must be a positive number, got -0.05"),
+        ({"lift_height": True}, "lift_height must be a positive number, got True"),
+        ({"reset_noise_scale": -0.1}, "reset_noise_scale must be a non-negative number, got -0.1"),
+        ({"reset_noise_scale": float("nan")}, "reset_noise_scale must be a non-negative number, got nan"),
+        ({"squeeze_torque": 0.0}, "squeeze_torque must be a positive number, got 0.0"),
+        ({"max_grip_speed": True}, "max_grip_speed must be a positive number, got True"),
+        ({"frame_skip": True}, "frame_skip must be an integer >= 1, got True"),
+        ({"frame_skip": 2.0}, "frame_skip must be an integer >= 1, got 2.0"),
+        ({"frame_skip": 0}, "frame_skip must be an integer >= 1, got 0"),
     ],
 )
 def test_grasper_options_are_checked(kwargs: dict[str, Any], message: str) -> None:
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(ValueError, match=re.escape(message)):
         grasp_envs.Grasper3DEnv(**kwargs)
+
+
+def test_grasper_accepts_a_noise_free_reset() -> None:
+    env = grasp_envs.Grasper3DEnv(reset_noise_scale=0)
+    env.reset(seed=0)
+    assert env.data.qpos[env._ids["claw_qpos"]] == 0.0
 
 
 @pytest.mark.parametrize(
@@ -116,3 +156,43 @@ def test_scripted_starts_off_changes_nothing() -> None:
     plain, wrapped = gym.make("Grasper3D-v7"), ScriptedStarts(gym.make("Grasper3D-v7"), probability=0.0)
     for seed in range(3):
         np.testing.assert_array_equal(plain.reset(seed=seed)[0], wrapped.reset(seed=seed)[0])
+
+
+@pytest.mark.parametrize(
+    "wrap",
+    [FlattenObservation, NormalizeObservation, lambda env: FrameStackObservation(env, 2)],
+    ids=["flatten", "normalize", "stack"],
+)
+def test_scripted_starts_refuses_wrappers_that_change_observations(wrap: Any) -> None:
+    """A scripted start returns the Grasper's own observation: a wrapper inside that may change it is refused."""
+    inner = wrap(gym.make("Grasper3D-v7"))
+    with pytest.raises(TypeError, match=type(inner).__name__):
+        ScriptedStarts(inner)
+    wrap(ScriptedStarts(gym.make("Grasper3D-v7"), probability=1.0, steps=(50, 51))).reset(seed=0)  # outside: fine
+
+
+def test_scripted_starts_accepts_observation_preserving_wrappers_and_keeps_their_reset_info() -> None:
+    inner = RecordEpisodeStatistics(Monitor(gym.make("Grasper3D-v7")))  # inside: gym.make's wrappers too
+    original_reset = inner.reset
+
+    def reset_with_info(**kwargs: Any) -> Any:
+        observation, info = original_reset(**kwargs)
+        return observation, {**info, "inner_note": 7}
+
+    inner.reset = reset_with_info  # type: ignore[method-assign]
+    env = ScriptedStarts(inner, probability=1.0, steps=(70, 71))
+    observation, info = env.reset(seed=0)
+    grasper = env.unwrapped
+    np.testing.assert_array_equal(observation, grasper._get_obs())
+    assert info == {"inner_note": 7, "is_success": grasper._is_success(), "unstable": False}
+
+
+def test_scripted_starts_records_its_arguments_in_the_spec() -> None:
+    env = ScriptedStarts(gym.make("Grasper3D-v7"), probability=0.5, steps=[50, 100], hold_height=0.07)
+    recorded = env.spec.additional_wrappers[-1]
+    assert recorded.entry_point == "grasp_envs.wrappers:ScriptedStarts"
+    assert recorded.kwargs == {"probability": 0.5, "steps": (50, 100), "hold_height": 0.07}
+    remade = gym.make(env.spec)
+    assert isinstance(remade, ScriptedStarts)
+    assert (remade.probability, remade.steps, remade.hold_height) == (0.5, (50, 100), 0.07)
+    np.testing.assert_array_equal(remade.reset(seed=1)[0], env.reset(seed=1)[0])

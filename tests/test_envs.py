@@ -422,7 +422,9 @@ def test_grasper_scripted_starts() -> None:
         np.testing.assert_array_equal(first, always.reset(seed=seed)[0])
         assert np.all(np.isfinite(first))
         started_grasped += always.unwrapped._is_grasped(always.unwrapped._contacts)
-    assert started_grasped >= 2  # measured: 4 of 16 (the scripted grasp closes at steps 53-86)
+    # measured: 4 of 16 (from v3's stretched start pose the scripted grasp has both halves on the cube after 52-87
+    # steps, in 17 of the episodes of seeds 0-19)
+    assert started_grasped >= 2
     with pytest.raises(ValueError, match="probability"):
         ScriptedStarts(gym.make("Grasper3D-v3"), probability=1.5)
 
