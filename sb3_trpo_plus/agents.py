@@ -111,20 +111,15 @@ def load_run_yaml(path: str | Path) -> Any:
 
 
 def parse_dict_text(text: str, where: str) -> dict[str, Any]:
-    """rl-zoo3's ``"dict(key=value, ...)"`` text as a dict of literals, without evaluating it."""
+    """rl-zoo3's ``"dict(key=value, ...)"`` text as a dict of literals, without evaluating it
+    (:func:`sb3_trpo_plus.zoo.dict_text`)."""
+    from sb3_trpo_plus.zoo import HyperparameterError, dict_text
+
     try:
-        tree = ast.parse(text.strip(), mode="eval").body
-    except SyntaxError:
-        tree = None
-    if not (isinstance(tree, ast.Call) and isinstance(tree.func, ast.Name) and tree.func.id == "dict" and not tree.args):
-        raise RunFileError(f"{where}: refused {text!r}: expected the form dict(key=literal, ...), which is read, not run")
-    result: dict[str, Any] = {}
-    for keyword in tree.keywords:
-        try:
-            result[str(keyword.arg)] = ast.literal_eval(keyword.value)
-        except ValueError:
-            raise RunFileError(f"{where}: refused {text!r}: the value of {keyword.arg!r} is not a literal") from None
-    return result
+        return dict_text(text, where, "the text")
+    except HyperparameterError as error:
+        reason = str(error).removeprefix(f"{where}: ")
+        raise RunFileError(f"{where}: refused {text!r}: {reason}, which is read, not run") from None
 
 
 @dataclass(frozen=True)

@@ -96,6 +96,8 @@ def dict_text(value: str, where: str, key: str, activations: bool = False) -> di
         raise HyperparameterError(f"{where}: {key} text must be of the form dict(key=value, ...)")
     mapping: dict[str, Any] = {}
     for keyword in tree.keywords:
+        if keyword.arg is None:
+            raise HyperparameterError(f"{where}: {key} text must name each key (dict(key=value, ...)), got **")
         node = keyword.value
         if activations and isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "nn":
             mapping[str(keyword.arg)] = node.attr
