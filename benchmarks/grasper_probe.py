@@ -87,7 +87,7 @@ def probe(
         total, grasped_once, done = 0.0, False, np.array([False])
         while not done[0]:  # the TimeLimit ends it (the VecEnv then resets; infos[0] is the last step's)
             action, _ = model.predict(obs, deterministic=deterministic)
-            grasped = arm._is_grasped(arm._contacts)
+            grasped = arm.is_grasped()
             grasped_once = grasped_once or grasped
             if grasped:
                 vertical.append(float(np.clip(action[0, 2], -1.0, 1.0)))
@@ -123,7 +123,7 @@ def trace(
     lifted_at = {}
     for t in range(1, steps + 1):
         obs, success = step(policy(obs))
-        if first_grasp is None and arm._is_grasped(arm._contacts):
+        if first_grasp is None and arm.is_grasped():
             first_grasp = t
         if first_lift is None and success:
             first_lift = t

@@ -1,9 +1,15 @@
-"""Shared machinery of the arm tasks: action checking, stable stepping, named MuJoCo look-ups."""
+"""Shared machinery of the arm tasks, written once over a leading simulation axis.
+
+A task (``ArmTask``) computes controls, observations, rewards, success, termination and reset states for ``n``
+simulations at once from ``SimArrays``: views with a leading simulation axis, either of one ``MjData`` (the Gymnasium
+env, a batch of one) or of a ``mujoco.batch.Batch`` (``grasp_envs.make_batch_env``). ``ArmEnv`` is the Gymnasium face
+of a task; ``grasp_envs.batch.BatchVecEnv`` its SB3 VecEnv face.
+"""
 
 from __future__ import annotations
 
 from os import path
-from typing import Any
+from typing import Any, ClassVar
 
 import mujoco
 import numpy as np
@@ -21,7 +27,7 @@ DEFAULT_CAMERA_CONFIG_3D: dict[str, Any] = {
     "lookat": np.array([0.0, 0.0, -0.12]),
 }
 
-_INSTABILITY_WARNINGS = np.array(
+INSTABILITY_WARNINGS = np.array(
     [
         mujoco.mjtWarning.mjWARN_BADQPOS,
         mujoco.mjtWarning.mjWARN_BADQVEL,
@@ -30,12 +36,70 @@ _INSTABILITY_WARNINGS = np.array(
     ],
     dtype=np.int64,
 )
+# MjData fields the tasks read, each as an (n, ...) array
+SIM_FIELDS = (
+    "qpos", "qvel", "ctrl", "mocap_pos", "xpos", "xmat", "site_xpos", "geom_xpos", "geom_xmat", "actuator_force",
+    "qfrc_bias", "sensordata", "cdof", "subtree_com",
+)  # fmt: skip
+
+Array = NDArray[np.float64]
 
 
-def near_bonus(distance: float, weight: float, scale: float) -> float:
+class SimArrays:
+    """The state of ``n`` simulations of one model, each MjData field (``SIM_FIELDS``) an ``(n, ...)`` array.
+
+    ``SimArrays.of_data(model, data)`` views one ``MjData`` as a batch of one; ``SimArrays.of_batch(batch)`` binds a
+    ``mujoco.batch.Batch``. Either way the arrays stay live: they show the state after every physics call.
+    """
+
+    qpos: Array
+    qvel: Array
+    ctrl: Array
+    mocap_pos: Array
+    xpos: Array
+    xmat: Array
+    site_xpos: Array
+    geom_xpos: Array
+    geom_xmat: Array
+    actuator_force: Array
+    qfrc_bias: Array
+    sensordata: Array
+    cdof: Array
+    subtree_com: Array
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        arrays: dict[str, Array],
+        warnings: NDArray[np.int32],
+        data: mujoco.MjData | None = None,
+    ):
+        self.model = model
+        self.data = data
+        self.n = len(arrays["qpos"])
+        for name in SIM_FIELDS:
+            setattr(self, name, arrays[name])
+        self._warnings = warnings
+
+    @classmethod
+    def of_data(cls, model: mujoco.MjModel, data: mujoco.MjData) -> SimArrays:
+        return cls(model, {name: getattr(data, name)[None] for name in SIM_FIELDS}, data.warning.number[None], data)
+
+    def instability_warnings(self) -> NDArray[np.int64]:
+        """Per simulation, how many times MuJoCo has reset a diverging state (bad qpos, qvel, qacc or ctrl)."""
+        return self._warnings[:, INSTABILITY_WARNINGS].sum(axis=1, dtype=np.int64)  # type: ignore[no-any-return]
+
+
+def near_bonus(distance: Array, weight: float, scale: float) -> Array:
     """The reachers' precision term ``weight (1 - tanh(distance / scale))``: bounded in ``[0, weight]`` and steepest at
     the target, so that the last centimetres before it pay."""
-    return weight * (1.0 - float(np.tanh(distance / scale)))
+    return weight * (1.0 - np.tanh(distance / scale))  # type: ignore[no-any-return]
+
+
+def norm(vectors: Array) -> Array:
+    """Euclidean norm over the last axis (as a stack of dot products, so that each equals ``np.linalg.norm`` of the
+    one vector: bit-equal results whatever the batch size)."""
+    return np.sqrt((vectors[..., None, :] @ vectors[..., :, None])[..., 0, 0])  # type: ignore[no-any-return]
 
 
 def check_near_bonus(weight: float, scale: float) -> None:
@@ -45,6 +109,11 @@ def check_near_bonus(weight: float, scale: float) -> None:
         raise ValueError(f"reward_near_weight must be non-negative, got {weight}")
 
 
+def check_frame_skip(frame_skip: Any) -> None:
+    if isinstance(frame_skip, bool) or not isinstance(frame_skip, int | np.integer) or frame_skip < 1:
+        raise ValueError(f"frame_skip must be an integer >= 1, got {frame_skip!r}")
+
+
 def asset_path(xml_file: str) -> str:
     """Absolute path of a model: an existing path is used as given, a bare name is looked up in our assets."""
     if path.isabs(xml_file) or path.exists(xml_file):
@@ -52,72 +121,180 @@ def asset_path(xml_file: str) -> str:
     return path.join(ASSETS, xml_file)
 
 
-class ArmEnv(MujocoEnv, utils.EzPickle):
-    """Base class of the thesis' arm tasks (not registered itself).
+class ArmTask:
+    """One arm task over ``n`` simulations: everything but the physics stepping, batch-first.
 
-    Subclasses implement ``_get_obs``, ``_get_rew`` (returning ``(reward, {"reward_<term>": ...})``),
-    ``_is_success`` and ``reset_model``. ``step`` validates and clips the action, simulates, and
-    ends the episode with ``info["unstable"] = True`` if MuJoCo had to reset a diverging simulation.
+    Subclasses set ``observation_dim`` and ``contact_pairs`` (geom name pairs whose contacts the task counts, read
+    through MuJoCo contact sensors added to the model), and implement ``observe``, ``reward`` (``(reward, info)``
+    with ``info`` arrays, one ``reward_<term>`` per term), ``success`` and ``sample_start``. Per-simulation task
+    state (e.g. whether the wall was touched) lives in arrays of length ``n`` set up by ``setup``.
+    """
+
+    contact_pairs: ClassVar[tuple[tuple[str, str], ...]] = ()
+
+    def __init__(self, xml_file: str, frame_skip: int, observation_dim: int):
+        check_frame_skip(frame_skip)
+        self.xml_file = xml_file
+        self.frame_skip = int(frame_skip)
+        self.observation_dim = observation_dim
+        self.n = 0
+
+    # ------------------------------------------------------------------ the model
+    def build_model(self) -> mujoco.MjModel:
+        """The task's model: its XML, edited by ``edit_spec``, with one contact sensor per ``contact_pairs`` entry."""
+        spec = mujoco.MjSpec.from_file(asset_path(self.xml_file))
+        self.edit_spec(spec)
+        for first, second in self.contact_pairs:
+            spec.add_sensor(
+                name=f"contacts:{first}:{second}", type=mujoco.mjtSensor.mjSENS_CONTACT,
+                objtype=mujoco.mjtObj.mjOBJ_GEOM, objname=first, reftype=mujoco.mjtObj.mjOBJ_GEOM, refname=second,
+                intprm=[1, 0, 1],  # report "found": the number of contacts between the two geoms
+            )  # fmt: skip
+        return spec.compile()
+
+    def edit_spec(self, spec: mujoco.MjSpec) -> None:
+        """Change the model before it is compiled (the Grasper adds the cube's turning joint)."""
+
+    def setup(self, model: mujoco.MjModel, n: int) -> None:
+        """Look the model's names up once and make the per-simulation task state for ``n`` simulations."""
+        self.model = model
+        self.n = n
+        self.init_qpos = model.qpos0.copy()
+        self.init_qvel = np.zeros(model.nv)
+        self.ctrl_low = model.actuator_ctrlrange[:, 0].copy()
+        self.ctrl_high = model.actuator_ctrlrange[:, 1].copy()
+        self.default_mocap_pos = mujoco.MjData(model).mocap_pos.copy()
+        self._contact_geoms = np.array(
+            [(model.geom(a).id, model.geom(b).id) for a, b in self.contact_pairs], dtype=np.int64
+        ).reshape(-1, 2)
+        self._contact_rows = np.array(
+            [model.sensor_adr[model.sensor(f"contacts:{a}:{b}").id] for a, b in self.contact_pairs], dtype=np.int64
+        )
+
+    def action_space(self, model: mujoco.MjModel) -> Box:
+        """The actuators' control ranges, as Gymnasium's ``MujocoEnv`` makes them."""
+        low, high = model.actuator_ctrlrange.copy().astype(np.float32).T
+        return Box(low=low, high=high, dtype=np.float32)
+
+    def geom_id(self, name: str) -> int:
+        return int(self.model.geom(name).id)
+
+    def site_id(self, name: str) -> int:
+        return int(self.model.site(name).id)
+
+    def contact_counts(self, sim: SimArrays) -> NDArray[np.float64]:
+        """Contacts between each ``contact_pairs`` pair, ``(n, len(contact_pairs))``, those of the last collision
+        detection (``MjData.contact`` after ``mj_step`` or ``mj_forward``).
+
+        One ``MjData`` is read from its contact list; a batch from the task's contact sensors, which the batch
+        engine makes current with a position-stage forward after each step (a contact sensor reports the contacts
+        found before its own stage's collision detection; tested equal to the contact list).
+        """
+        if sim.data is None:
+            return sim.sensordata[:, self._contact_rows]
+        geoms = sim.data.contact.geom[: sim.data.ncon]
+        first, second = geoms[:, :1], geoms[:, 1:]
+        pair_first, pair_second = self._contact_geoms[:, 0], self._contact_geoms[:, 1]
+        match = ((first == pair_first) & (second == pair_second)) | ((first == pair_second) & (second == pair_first))
+        return match.sum(axis=0, dtype=np.float64)[None]
+
+    # ------------------------------------------------------------------ the step
+    def controls(self, sim: SimArrays, action: Array) -> Array:
+        """The actuator controls ``(n, nu)`` of the (checked, clipped) actions ``(n, action_dim)``."""
+        return action
+
+    def transition(
+        self, sim: SimArrays, action: Array, unstable: NDArray[np.bool_]
+    ) -> tuple[Array, Array, NDArray[np.bool_], dict[str, NDArray[Any]]]:
+        """Observation, reward, termination and info arrays after a physics step of every simulation.
+
+        A simulation that became unstable (MuJoCo reset it), or whose reward or observation is not finite, ends its
+        episode with reward 0, every ``reward_<term>`` 0, non-finite observation entries 0 and ``unstable`` true.
+        """
+        observation = self.observe(sim)
+        reward, info = self.reward(sim, action)
+        terminated = self.terminal(sim)
+        info["is_success"] = self.success(sim)
+        bad = unstable | ~np.isfinite(reward) | ~np.isfinite(observation).all(axis=1)
+        if bad.any():
+            reward = np.where(bad, 0.0, reward)
+            for key in info:
+                if key.startswith("reward_"):
+                    info[key] = np.where(bad, 0.0, info[key])
+            observation[bad] = np.nan_to_num(observation[bad], nan=0.0, posinf=0.0, neginf=0.0)
+            terminated = terminated | bad
+        info["unstable"] = bad
+        return observation, reward, terminated, info
+
+    def observe(self, sim: SimArrays) -> Array:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def reward(self, sim: SimArrays, action: Array) -> tuple[Array, dict[str, NDArray[Any]]]:  # pragma: no cover
+        raise NotImplementedError
+
+    def success(self, sim: SimArrays) -> NDArray[np.bool_]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def terminal(self, sim: SimArrays) -> NDArray[np.bool_]:
+        return np.zeros(sim.n, dtype=bool)
+
+    # ------------------------------------------------------------------ the reset
+    def sample_start(self, rng: np.random.Generator) -> tuple[Array, Array, Array | None]:  # pragma: no cover
+        """One simulation's start state drawn with its generator: ``qpos``, ``qvel`` and the mocap positions (or
+        ``None`` to keep the model's)."""
+        raise NotImplementedError
+
+    def started(self, sim: SimArrays, ids: NDArray[np.int64]) -> None:
+        """Set the task state of the simulations ``ids`` after their start state was written and forwarded."""
+
+    def reset_info(self, sim: SimArrays) -> dict[str, NDArray[Any]]:
+        return {"is_success": self.success(sim), "unstable": np.zeros(sim.n, dtype=bool)}
+
+
+def info_of(info: dict[str, NDArray[Any]], i: int) -> dict[str, Any]:
+    """Simulation ``i``'s info dict, with Python scalars."""
+    return {key: value[i].item() for key, value in info.items()}
+
+
+class ArmEnv(MujocoEnv, utils.EzPickle):
+    """The Gymnasium face of an ``ArmTask``: one simulation, a batch of one (not registered itself).
+
+    ``step`` validates and clips the action, simulates ``frame_skip`` physics steps, and ends the episode with
+    ``info["unstable"] = True`` if MuJoCo had to reset a diverging simulation.
     """
 
     metadata: dict[str, Any] = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"]}
     action_space: Box  # every arm task has continuous actions
+    task: ArmTask
 
-    def __init__(
-        self,
-        xml_file: str,
-        frame_skip: int,
-        default_camera_config: dict[str, Any] | None,
-        observation_dim: int,
-        **kwargs: Any,
-    ):
-        if isinstance(frame_skip, bool) or not isinstance(frame_skip, int | np.integer) or frame_skip < 1:
-            raise ValueError(f"frame_skip must be an integer >= 1, got {frame_skip!r}")
-        observation_space = Box(low=-np.inf, high=np.inf, shape=(observation_dim,), dtype=np.float64)
+    def __init__(self, task: ArmTask, default_camera_config: dict[str, Any] | None, **kwargs: Any):
+        self.task = task
+        observation_space = Box(low=-np.inf, high=np.inf, shape=(task.observation_dim,), dtype=np.float64)
         MujocoEnv.__init__(
             self,
-            asset_path(xml_file),
-            frame_skip,
+            asset_path(task.xml_file),
+            task.frame_skip,
             observation_space=observation_space,
             default_camera_config=default_camera_config,
             **kwargs,
         )
         self.metadata = {**ArmEnv.metadata, "render_fps": int(np.round(1.0 / self.dt))}
-        self._ctrl_low = self.model.actuator_ctrlrange[:, 0].copy()
-        self._ctrl_high = self.model.actuator_ctrlrange[:, 1].copy()
+        task.setup(self.model, 1)
+        self.init_qpos, self.init_qvel = task.init_qpos, task.init_qvel
+        self.sim = SimArrays.of_data(self.model, self.data)
 
-    # ------------------------------------------------------------------ look-ups by name
-    def geom_id(self, name: str) -> int:
-        return int(self.model.geom(name).id)
+    def _initialize_simulation(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        model = self.task.build_model()
+        model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.width)
+        model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
+        return model, mujoco.MjData(model)
 
-    def geom_mask(self, names: list[str]) -> NDArray[np.bool_]:
-        """Boolean mask over all geom ids, true for the named geoms (contact tests index it directly)."""
-        mask = np.zeros(self.model.ngeom, dtype=bool)
-        mask[[self.geom_id(n) for n in names]] = True
-        return mask
-
-    def site_pos(self, name: str) -> NDArray[np.float64]:
-        return self.data.site(name).xpos
-
-    def contact_pairs(self) -> NDArray[np.int32]:
-        """Geom id pairs of the active contacts, shape ``(ncon, 2)`` (one vectorised read)."""
-        return self.data.contact.geom[: self.data.ncon]
-
-    @staticmethod
-    def touching(pairs: NDArray[np.int32], mask_a: NDArray[np.bool_], mask_b: NDArray[np.bool_]) -> NDArray[np.bool_]:
-        """For each contact, whether it joins a geom of ``mask_a`` with a geom of ``mask_b``."""
-        first, second = pairs[:, 0], pairs[:, 1]
-        return (mask_a[first] & mask_b[second]) | (mask_a[second] & mask_b[first])
-
-    @staticmethod
-    def touching_geoms(pairs: NDArray[np.int32], mask_a: NDArray[np.bool_], mask_b: NDArray[np.bool_]) -> int:
-        """Number of distinct geoms of ``mask_a`` in contact with any geom of ``mask_b``."""
-        hits = np.zeros(len(mask_a), dtype=bool)
-        hits[pairs[ArmEnv.touching(pairs, mask_a, mask_b)].ravel()] = True
-        return int((hits & mask_a).sum())
+    def _set_action_space(self) -> Box:
+        self.action_space = self.task.action_space(self.model)
+        return self.action_space
 
     # ------------------------------------------------------------------ stepping
-    def _checked_action(self, action: Any) -> NDArray[np.float64]:
+    def _checked_action(self, action: Any) -> Array:
         action = np.asarray(action, dtype=np.float64)
         if action.shape != self.action_space.shape:
             raise ValueError(
@@ -125,59 +302,52 @@ class ArmEnv(MujocoEnv, utils.EzPickle):
             )
         if not np.all(np.isfinite(action)):
             raise ValueError(f"{type(self).__name__}.step got a non-finite action: {action}")
-        return np.clip(action, self.action_space.low, self.action_space.high)
+        return np.clip(action, self.action_space.low, self.action_space.high)  # type: ignore[no-any-return]
 
-    def _step_mujoco_simulation(self, ctrl: NDArray[np.float64], n_frames: int) -> None:
-        # Gymnasium's version also runs mj_rnePostConstraint (cacc, cfrc_*), which nothing here reads.
-        self.data.ctrl[:] = ctrl
-        mujoco.mj_step(self.model, self.data, nstep=n_frames)
-
-    def _simulate(self, action: NDArray[np.float64]) -> bool:
-        """Run ``frame_skip`` physics steps; return whether the simulation became unstable.
-
-        MuJoCo itself resets ``mjData`` and counts a warning when positions, velocities, accelerations
-        or controls become non-finite or huge: one vectorised read of the warning counters tells.
-        """
-        warnings_before = int(self.data.warning.number[_INSTABILITY_WARNINGS].sum())
-        self.do_simulation(action, self.frame_skip)
-        warnings_after = int(self.data.warning.number[_INSTABILITY_WARNINGS].sum())
-        return warnings_after > warnings_before or not np.isfinite(self.data.qvel).all()
-
-    def step(self, action: Any) -> tuple[NDArray[np.float64], float, bool, bool, dict[str, Any]]:  # type: ignore[override]
-        action = self._checked_action(action)
-        unstable = self._simulate(action)
+    def _simulate(self, action: Array) -> bool:
+        """Run ``frame_skip`` physics steps with the controls of ``action``; return whether the simulation became
+        unstable (MuJoCo resets ``mjData`` and counts a warning when positions, velocities, accelerations or
+        controls become non-finite or huge). An unstable simulation is put back into its default state."""
+        ctrl = self.task.controls(self.sim, action[None])
+        warnings_before = int(self.sim.instability_warnings()[0])
+        self.data.ctrl[:] = ctrl[0]
+        mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
+        unstable = int(self.sim.instability_warnings()[0]) > warnings_before or not np.isfinite(self.data.qvel).all()
         if unstable:
-            # Put the physics back into a valid state; the episode ends here.
             mujoco.mj_resetData(self.model, self.data)
             mujoco.mj_forward(self.model, self.data)
-        observation = self._get_obs()
-        reward, info = self._get_rew(action)
-        terminated = self._is_terminal()
-        info["is_success"] = bool(self._is_success())
-        info["unstable"] = unstable
-        if unstable or not np.isfinite(reward) or not np.all(np.isfinite(observation)):
-            info["unstable"] = True
-            reward = 0.0
-            info = {k: (0.0 if k.startswith("reward_") else v) for k, v in info.items()}
-            observation = np.nan_to_num(observation, nan=0.0, posinf=0.0, neginf=0.0)
-            terminated = True
+        return unstable
+
+    def step(self, action: Any) -> tuple[Array, float, bool, bool, dict[str, Any]]:  # type: ignore[override]
+        action = self._checked_action(action)
+        unstable = self._simulate(action)
+        observation, reward, terminated, info = self.task.transition(self.sim, action[None], np.array([unstable]))
         if self.render_mode == "human":
             self.render()
         # truncation is left to the TimeLimit wrapper added by `gymnasium.make`
-        return observation, float(reward), bool(terminated), False, info
+        return observation[0], float(reward[0]), bool(terminated[0]), False, info_of(info, 0)
 
-    # ------------------------------------------------------------------ hooks
-    def _get_obs(self) -> NDArray[np.float64]:  # pragma: no cover - abstract
-        raise NotImplementedError
+    # ------------------------------------------------------------------ reset
+    def reset_model(self) -> Array:
+        qpos, qvel, mocap_pos = self.task.sample_start(self.np_random)
+        if mocap_pos is not None:
+            self.data.mocap_pos[:] = mocap_pos
+        self.set_state(qpos, qvel)
+        self.task.started(self.sim, np.zeros(1, dtype=np.int64))
+        return self.task.observe(self.sim)[0]
 
-    def _get_rew(self, action: NDArray[np.float64]) -> tuple[float, dict[str, Any]]:  # pragma: no cover - abstract
-        raise NotImplementedError
-
-    def _is_success(self) -> bool:  # pragma: no cover - abstract
-        raise NotImplementedError
-
-    def _is_terminal(self) -> bool:
-        return False
+    def _get_obs(self) -> Array:
+        return self.task.observe(self.sim)[0]
 
     def _get_reset_info(self) -> dict[str, Any]:
-        return {"is_success": bool(self._is_success()), "unstable": False}
+        return info_of(self.task.reset_info(self.sim), 0)
+
+    def _is_success(self) -> bool:
+        return bool(self.task.success(self.sim)[0])
+
+    def _get_rew(self, action: Any) -> tuple[float, dict[str, Any]]:
+        reward, info = self.task.reward(self.sim, np.asarray(action, dtype=np.float64)[None])
+        return float(reward[0]), info_of(info, 0)
+
+    def site_pos(self, name: str) -> Array:
+        return self.data.site(name).xpos

@@ -1,75 +1,103 @@
-"""Joint-level feedback control shared by the scripted controllers and Grasper3D-v2's end-effector actions.
+"""Joint-level feedback control shared by the scripted controllers and the Grasper's grip-velocity actions.
 
-Inverse kinematics by damped least squares on MuJoCo's Jacobians, then a joint-velocity servo with gravity
-(bias-force) compensation. Every function reads the simulator state of an unwrapped ``ArmEnv``.
+Inverse kinematics by damped least squares on the arm's Jacobians, then a joint-velocity servo with gravity
+(bias-force) compensation. Every function works on ``n`` simulations at once (``grasp_envs.base.SimArrays``, a
+leading simulation axis on every array) and reads the state MuJoCo computed at the last physics call.
 """
 
 from __future__ import annotations
-
-from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-if TYPE_CHECKING:
-    from grasp_envs.base import ArmEnv
+from grasp_envs.base import SimArrays
 
 VELOCITY_GAIN = 25.0  # joint-velocity servo gain (1/s); armature 1, so torque = gain * velocity error
 MAX_JOINT_SPEED = 10.0  # rad/s asked of any joint by the inverse kinematics
-_UP = np.array([0.0, 0.0, 1.0])
+
+Array = NDArray[np.float64]
 
 
-def damped_least_squares(
-    jacobian: NDArray[np.float64], error: NDArray[np.float64], damping: float = 1e-3
-) -> NDArray[np.float64]:
-    """``J^T (J J^T + damping I)^{-1} error``: the joint motion that best produces ``error``."""
-    jjt = jacobian @ jacobian.T
-    return jacobian.T @ np.linalg.solve(jjt + damping * np.eye(len(jjt)), error)
+def cross(a: Array, b: Array) -> Array:
+    """Cross products over the last axis, in the operation order of MuJoCo's ``mju_cross`` (bit-equal results)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
-def damped_pseudo_inverse(jacobian: NDArray[np.float64], damping: float = 1e-3) -> NDArray[np.float64]:
-    """``J^T (J J^T + damping I)^{-1}``, the matrix ``damped_least_squares`` applies to an error."""
-    jjt = jacobian @ jacobian.T
-    return jacobian.T @ np.linalg.inv(jjt + damping * np.eye(len(jjt)))
+def chain_dofs(model: mujoco.MjModel, body: int) -> NDArray[np.int64]:
+    """The degrees of freedom that move ``body``: its own and its ancestors', from the body up."""
+    dofs: list[int] = []
+    while body > 0:
+        start = model.body_dofadr[body]
+        dofs.extend(range(start, start + model.body_dofnum[body]))
+        body = model.body_parentid[body]
+    return np.array(dofs, dtype=np.int64)
 
 
-def velocity_servo(env: ArmEnv, dofs: NDArray[np.int64], desired_velocity: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Actuator commands (torque / gear) that drive the joints ``dofs`` towards ``desired_velocity``.
+def point_jacobians(sim: SimArrays, body: int, point: Array) -> tuple[Array, Array]:
+    """Translational and rotational Jacobians ``(n, 3, nv)`` of the world points ``point`` ``(n, 3)`` fixed to
+    ``body``: MuJoCo's ``mj_jac`` over the bound ``cdof`` and ``subtree_com``, for all simulations at once (bit-equal
+    to ``mj_jac`` per simulation, tested)."""
+    model = sim.model
+    dofs = chain_dofs(model, body)
+    offset = point - sim.subtree_com[:, model.body_rootid[body]]
+    motion = sim.cdof[:, dofs]  # (n, k, 6): rotation then translation
+    jacp = np.zeros((sim.n, 3, model.nv))
+    jacr = np.zeros((sim.n, 3, model.nv))
+    jacp[:, :, dofs] = (motion[..., 3:] + cross(motion[..., :3], offset[:, None, :])).transpose(0, 2, 1)
+    jacr[:, :, dofs] = motion[..., :3].transpose(0, 2, 1)
+    return jacp, jacr
 
-    The first ``len(dofs)`` actuators must drive ``dofs`` in order. Gravity and Coriolis forces
-    (``qfrc_bias``) and the joints' damping (1 N m s/rad) are compensated.
+
+def site_jacobian(sim: SimArrays, site: int, dofs: NDArray[np.int64]) -> Array:
+    """Translational Jacobian of a site with respect to the joints ``dofs``, ``(n, 3, len(dofs))``."""
+    jacp, _ = point_jacobians(sim, int(sim.model.site_bodyid[site]), sim.site_xpos[:, site])
+    return jacp[:, :, dofs]
+
+
+def damped_least_squares(jacobian: Array, error: Array, damping: float = 1e-3) -> Array:
+    """``J^T (J J^T + damping I)^{-1} error`` per simulation: the joint motion that best produces ``error``.
+    ``jacobian`` is ``(n, m, k)``, ``error`` ``(n, m)``."""
+    jjt = jacobian @ jacobian.transpose(0, 2, 1)
+    solved = np.linalg.solve(jjt + damping * np.eye(jjt.shape[-1]), error[..., None])
+    return (jacobian.transpose(0, 2, 1) @ solved)[..., 0]  # type: ignore[no-any-return]
+
+
+def damped_pseudo_inverse(jacobian: Array, damping: float = 1e-3) -> Array:
+    """``J^T (J J^T + damping I)^{-1}`` per simulation, the matrix ``damped_least_squares`` applies to an error."""
+    jjt = jacobian @ jacobian.transpose(0, 2, 1)
+    return jacobian.transpose(0, 2, 1) @ np.linalg.inv(jjt + damping * np.eye(jjt.shape[-1]))  # type: ignore[no-any-return]
+
+
+def velocity_servo(sim: SimArrays, dofs: NDArray[np.int64], desired_velocity: Array) -> Array:
+    """Actuator commands (torque / gear) that drive the joints ``dofs`` towards ``desired_velocity`` ``(n, k)``.
+
+    The first ``len(dofs)`` actuators must drive ``dofs`` in order. Gravity and Coriolis forces (``qfrc_bias``) and
+    the joints' damping (1 N m s/rad) are compensated.
     """
-    gear = env.model.actuator_gear[: len(dofs), 0]
-    qvel = env.data.qvel[dofs]
-    torque = VELOCITY_GAIN * (desired_velocity - qvel) + env.data.qfrc_bias[dofs] + qvel
-    return torque / gear
+    gear = sim.model.actuator_gear[: len(dofs), 0]
+    qvel = sim.qvel[:, dofs]
+    torque = VELOCITY_GAIN * (desired_velocity - qvel) + sim.qfrc_bias[:, dofs] + qvel
+    return torque / gear  # type: ignore[no-any-return]
 
 
-def site_jacobian(env: ArmEnv, site: str, dofs: NDArray[np.int64]) -> NDArray[np.float64]:
-    """Translational Jacobian of a site with respect to the joints ``dofs``, shape ``(3, len(dofs))``."""
-    jacp = np.zeros((3, env.model.nv))
-    mujoco.mj_jacSite(env.model, env.data, jacp, None, env.model.site(site).id)
-    return jacp[:, dofs]
+def reach(sim: SimArrays, site: int, goal: Array, dofs: NDArray[np.int64], speed: float = 8.0) -> Array:
+    """Commands moving ``site`` towards ``goal`` ``(n, 3)`` with the joints ``dofs``."""
+    error = goal - sim.site_xpos[:, site]
+    velocity = damped_least_squares(site_jacobian(sim, site, dofs), speed * error)
+    return velocity_servo(sim, dofs, np.clip(velocity, -MAX_JOINT_SPEED, MAX_JOINT_SPEED))
 
 
-def reach(
-    env: ArmEnv, site: str, goal: NDArray[np.float64], dofs: NDArray[np.int64], speed: float = 8.0
-) -> NDArray[np.float64]:
-    """Commands moving ``site`` towards ``goal`` with the joints ``dofs``."""
-    error = goal - env.data.site(site).xpos
-    velocity = damped_least_squares(site_jacobian(env, site, dofs), speed * error)
-    return velocity_servo(env, dofs, np.clip(velocity, -MAX_JOINT_SPEED, MAX_JOINT_SPEED))
-
-
-def grip_down_commands(env: ArmEnv, grip_velocity: NDArray[np.float64], grip_priority: bool = False) -> NDArray[np.float64]:
+def grip_down_commands(sim: SimArrays, grip_velocity: Array, grip_priority: bool = False) -> Array:
     """Commands of the Grasper's five arm motors: the velocity servo driving ``grip_down_velocity``."""
-    return velocity_servo(env, np.arange(5), grip_down_velocity(env, grip_velocity, grip_priority))
+    return velocity_servo(sim, np.arange(5), grip_down_velocity(sim, grip_velocity, grip_priority))
 
 
-def grip_down_velocity(env: ArmEnv, grip_velocity: NDArray[np.float64], grip_priority: bool = False) -> NDArray[np.float64]:
-    """Velocities of the Grasper's five arm joints (rad/s) that move its grip site at ``grip_velocity`` (m/s)
-    while turning the forearm to point down and the claw's closing axis to lie horizontal.
+def grip_down_velocity(sim: SimArrays, grip_velocity: Array, grip_priority: bool = False) -> Array:
+    """Velocities ``(n, 5)`` of the Grasper's five arm joints (rad/s) that move its grip site at ``grip_velocity``
+    ``(n, 3)`` (m/s) while turning the forearm to point down and the claw's closing axis to lie horizontal.
 
     The task has five rows for five joints: the grip velocity (3), the closing axis' vertical component
     driven to zero (1) and the forearm axis driven towards -z (1, weighted 0.2). The claw's yaw about the
@@ -82,23 +110,30 @@ def grip_down_velocity(env: ArmEnv, grip_velocity: NDArray[np.float64], grip_pri
     grasp (20 seeded episodes) lifted the cube only 3.9 cm at 6.4 cm from the axis and grasped none of the
     three cubes within 4.3 cm of it (with priority: lifted 6 cm, and one of the three lifted 12 cm).
     """
-    model, data = env.model, env.data
+    model = sim.model
     dofs = np.arange(5)
-    xmat = data.body("forearm").xmat.reshape(3, 3)
-    axis, closing = xmat[:, 0], xmat[:, 1]
-    jacr = np.zeros((3, model.nv))
-    mujoco.mj_jacBody(model, data, None, jacr, model.body("forearm").id)
-    up = _UP
-    primary = np.vstack([site_jacobian(env, "grip", dofs), np.cross(closing, up) @ jacr[:, dofs]])
-    primary_error = np.concatenate([grip_velocity, [-4.0 * closing @ up]])
-    down, down_error = np.cross(axis, up) @ jacr[:, dofs], 4.0 * (-1.0 - axis @ up)
+    forearm = int(model.body("forearm").id)
+    xmat = sim.xmat[:, forearm].reshape(-1, 3, 3)
+    axis, closing = xmat[:, :, 0], xmat[:, :, 1]
+    _, jacr = point_jacobians(sim, forearm, sim.xpos[:, forearm])
+    jacr = jacr[:, :, dofs]
+    up = np.zeros_like(axis)
+    up[:, 2] = 1.0
+    grip = site_jacobian(sim, int(model.site("grip").id), dofs)
+    closing_row = (cross(closing, up)[:, None, :] @ jacr)[:, 0]
+    primary = np.concatenate([grip, closing_row[:, None, :]], axis=1)
+    primary_error = np.concatenate([grip_velocity, -4.0 * closing[:, 2:3]], axis=1)
+    down = (cross(axis, up)[:, None, :] @ jacr)[:, 0]
+    down_error = 4.0 * (-1.0 - axis[:, 2])
     if grip_priority:
         inverse = damped_pseudo_inverse(primary, damping=1e-4)
-        velocity = inverse @ primary_error
+        velocity = (inverse @ primary_error[..., None])[..., 0]
         null = np.eye(len(dofs)) - inverse @ primary
-        down_null = (down @ null)[None, :]
-        velocity += null @ damped_least_squares(down_null, np.array([down_error - down @ velocity]), damping=1e-3)
+        down_null = down[:, None, :] @ null
+        residual = down_error - (down[:, None, :] @ velocity[..., None])[:, 0, 0]
+        velocity = velocity + (null @ damped_least_squares(down_null, residual[:, None], damping=1e-3)[..., None])[..., 0]
     else:
-        jacobian = np.vstack([primary, 0.2 * down])
-        velocity = damped_least_squares(jacobian, np.append(primary_error, 0.2 * down_error), damping=1e-4)
-    return np.clip(velocity, -MAX_JOINT_SPEED, MAX_JOINT_SPEED)
+        jacobian = np.concatenate([primary, 0.2 * down[:, None, :]], axis=1)
+        error = np.concatenate([primary_error, 0.2 * down_error[:, None]], axis=1)
+        velocity = damped_least_squares(jacobian, error, damping=1e-4)
+    return np.clip(velocity, -MAX_JOINT_SPEED, MAX_JOINT_SPEED)  # type: ignore[no-any-return]

@@ -10,8 +10,8 @@ from gymnasium import utils
 from gymnasium.spaces import Box
 from numpy.typing import NDArray
 
-from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, asset_path
-from grasp_envs.control import grip_down_commands
+from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, ArmTask, SimArrays, asset_path, norm
+from grasp_envs.control import grip_down_commands, point_jacobians
 
 ARM_JOINTS = ("shoulder_y", "shoulder_z", "elbow_y", "elbow_z", "forearm_roll")
 CLAW_SIDES = ("right", "left")
@@ -62,6 +62,355 @@ START_POSES: dict[str, tuple[float, ...]] = {
 # joint velocities (the claw angle, the claw velocity, the cube, the claw sites relative to it, the contacts, and the
 # claw torque where it is observed)
 TASK_KEPT_JOINT_ROWS = np.r_[10, 16:32]
+CLAW_GEOMS = tuple(f"claw_{side}_{part}" for side in CLAW_SIDES for part in CLAW_PARTS)  # right's four, then left's
+# the contacts the task counts, each through a contact sensor: every claw capsule with the cube (rows 0-7) and with the
+# floor (8-15), every right capsule with every left one (16-31)
+CONTACT_PAIRS = (
+    tuple((geom, "cube") for geom in CLAW_GEOMS)
+    + tuple((geom, "floor") for geom in CLAW_GEOMS)
+    + tuple((right, left) for right in CLAW_GEOMS[:4] for left in CLAW_GEOMS[4:])
+)
+_BOTTOM_FLOOR_ROWS = np.array([8 + i for i, geom in enumerate(CLAW_GEOMS) if "bottom" in geom])
+
+Array = NDArray[np.float64]
+Flags = NDArray[np.bool_]
+
+
+class Grasper3DTask(ArmTask):
+    """Grasper3D's step logic over ``n`` simulations (options: ``Grasper3DEnv``; validated here)."""
+
+    contact_pairs = CONTACT_PAIRS
+
+    def __init__(
+        self,
+        xml_file: str | None = None,
+        frame_skip: int = 2,
+        claw: str = "servo",
+        control: str = "grip_velocity",
+        ik_mode: str = "priority",
+        max_grip_speed: float = MAX_GRIP_SPEED,
+        claw_rate: float | None = None,
+        observation: str = "task",
+        observe_claw_torque: bool | None = None,
+        cube_rotation: str | None = "yaw",
+        start_pose: str = "ready",
+        reward_mode: str = "staged",
+        reach_distance: str = "claw_segment",
+        grasp_test: str = "per_axis",
+        reward_reach_weight: float = 1.0,
+        reward_grasp_weight: float = 4.0,
+        reward_lift_weight: float = 4.0,
+        reward_hold_weight: float = 4.0,
+        reward_floor_weight: float = 1.0,
+        reward_squeeze_weight: float | None = None,
+        squeeze_torque: float = SQUEEZE_TORQUE,
+        reward_control_weight: float | None = None,
+        terminate_on_success: bool | None = None,
+        reset_noise_scale: float = 0.1,
+        lift_height: float = 0.05,
+    ):
+        _check_choice("claw", claw, tuple(CLAWS))
+        _check_choice("control", control, CONTROLS)
+        _check_choice("ik_mode", ik_mode, IK_MODES)
+        _check_choice("observation", observation, OBSERVATIONS)
+        _check_choice("cube_rotation", cube_rotation, (None, *CUBE_ROTATIONS))
+        _check_choice("start_pose", start_pose, tuple(START_POSES))
+        _check_choice("reward_mode", reward_mode, REWARD_MODES)
+        _check_choice("reach_distance", reach_distance, REACH_DISTANCES)
+        _check_choice("grasp_test", grasp_test, GRASP_TESTS)
+        for name, flag in (("observe_claw_torque", observe_claw_torque), ("terminate_on_success", terminate_on_success)):
+            if not (flag is None or isinstance(flag, bool)):
+                raise ValueError(f"{name} must be a bool or None, got {flag!r}")
+        _check_amount("max_grip_speed", max_grip_speed)
+        if claw_rate is not None:
+            _check_amount("claw_rate", claw_rate, "positive number or None")
+        if claw_rate is not None and (control != "grip_velocity" or claw != "servo"):
+            raise ValueError("claw_rate moves the servo claw's target: it needs control='grip_velocity' and claw='servo'")
+        _check_amount("squeeze_torque", squeeze_torque)
+        _check_amount("lift_height", lift_height)
+        _check_amount("reset_noise_scale", reset_noise_scale, "non-negative number")
+        servo = claw == "servo"
+        observe_torque = servo if observe_claw_torque is None else observe_claw_torque
+        squeeze_weight = (2.0 if servo else 0.0) if reward_squeeze_weight is None else reward_squeeze_weight
+        if (squeeze_weight or observe_torque) and not servo:
+            raise ValueError(
+                "reward_squeeze_weight and observe_claw_torque read the claw servo's torque: they need claw='servo'"
+            )
+        observation_dim = 31 if observation == "joint" else 25
+        observation_dim += int(observe_torque) + (6 if cube_rotation is not None else 0)
+        super().__init__(xml_file or CLAWS[claw], frame_skip, observation_dim)
+        self.claw = claw
+        self.control = control
+        self.max_grip_speed = float(max_grip_speed)
+        self.grip_priority = ik_mode == "priority"
+        self.claw_rate = claw_rate
+        self.observation = observation
+        self.observe_claw_torque = observe_torque
+        self.cube_rotation = cube_rotation
+        self.start_pose = start_pose
+        self.reward_mode = reward_mode
+        self.reach_distance_kind = reach_distance
+        self.grasp_test = grasp_test
+        self.reward_reach_weight = reward_reach_weight
+        self.reward_grasp_weight = reward_grasp_weight
+        self.reward_lift_weight = reward_lift_weight
+        self.reward_hold_weight = reward_hold_weight
+        self.reward_floor_weight = reward_floor_weight
+        self.reward_squeeze_weight = squeeze_weight
+        self.squeeze_torque = float(squeeze_torque)
+        thesis = reward_mode == "thesis"
+        self.reward_control_weight = (1.0 if thesis else 0.1) if reward_control_weight is None else reward_control_weight
+        self.terminate_on_success = thesis if terminate_on_success is None else terminate_on_success
+        self.reset_noise_scale = reset_noise_scale
+        self.lift_height = lift_height
+
+    # ------------------------------------------------------------------ the model
+    def edit_spec(self, spec: mujoco.MjSpec) -> None:
+        if self.cube_rotation is not None:
+            add_cube_rotation(spec, self.cube_rotation)
+
+    def action_space(self, model: mujoco.MjModel) -> Box:
+        if self.control == "grip_velocity":
+            return Box(low=-1.0, high=1.0, shape=(4,), dtype=np.float32)
+        return super().action_space(model)
+
+    def setup(self, model: mujoco.MjModel, n: int) -> None:
+        super().setup(model, n)
+        self.arm_qpos = np.array([model.joint(j).qposadr[0] for j in ARM_JOINTS])
+        self.arm_qvel = np.array([model.joint(j).dofadr[0] for j in ARM_JOINTS])
+        self.cube_qpos = np.array([model.joint(f"cube_{a}").qposadr[0] for a in "xyz"])
+        self.cube_dofs = np.array([model.joint(f"cube_{a}").dofadr[0] for a in "xyz"])
+        self.cube_body_pos = model.body("cube").pos.copy()
+        self.claw_qpos = int(model.joint("claw_right").qposadr[0])
+        self.claw_left_qpos = int(model.joint("claw_left").qposadr[0])
+        self.claw_qvel = int(model.joint("claw_right").dofadr[0])
+        self.claw_actuator = int(model.actuator("claw").id)
+        self.cube_geom = self.geom_id("cube")
+        self.forearm_body = int(model.body("forearm").id)
+        self.grip_site, self.palm_site = self.site_id("grip"), self.site_id("palm")
+        self.claw_sites = self.site_id("claw_right"), self.site_id("claw_left")
+        if self.start_pose != "stretched":
+            self.init_qpos[self.arm_qpos] = START_POSES[self.start_pose]
+        self.lift_bonus_paid = np.zeros(n, dtype=bool)
+        self.claw_target = np.full(n, CLAW_OPEN_TARGET)
+        self.contacts = self.no_contacts(n)
+
+    @staticmethod
+    def no_contacts(n: int) -> dict[str, NDArray[np.int64]]:
+        return {key: np.zeros(n, dtype=np.int64) for key in ("right", "left", "floor", "claw_claw", "claw_floor", "between")}
+
+    # ------------------------------------------------------------------ named quantities, (n, ...) each
+    def cube_pos(self, sim: SimArrays) -> Array:
+        return sim.geom_xpos[:, self.cube_geom]
+
+    def cube_height(self, sim: SimArrays) -> Array:
+        """Height of the cube's bottom face above the floor, from the cube geom (not its body frame)."""
+        return sim.geom_xpos[:, self.cube_geom, 2] - CUBE_HALF_SIZE - FLOOR_Z  # type: ignore[no-any-return]
+
+    def cube_axes(self, sim: SimArrays) -> Array:
+        """The cube's x and z axes in the world frame (the first and last columns of its rotation matrix)."""
+        rotation = sim.geom_xmat[:, self.cube_geom].reshape(-1, 3, 3)
+        return np.concatenate([rotation[:, :, 0], rotation[:, :, 2]], axis=1)
+
+    def claw_torque(self, sim: SimArrays) -> Array:
+        """The claw servo's torque on ``claw_right`` (N m, positive closes)."""
+        return sim.actuator_force[:, self.claw_actuator]
+
+    def forearm_frame(self, sim: SimArrays) -> Array:
+        """The forearm's rotation, ``(n, 3, 3)``: columns x along the forearm, z the claw's hinge axis."""
+        return sim.xmat[:, self.forearm_body].reshape(-1, 3, 3)
+
+    def grip_velocity(self, sim: SimArrays) -> Array:
+        """Linear velocity of the grip site in the world frame (m/s): its Jacobian times the joint velocities, as
+        Gymnasium Robotics' Fetch observes its grip (``qvel`` is the step's last; MuJoCo's own ``cvel`` lags it by one
+        physics step)."""
+        site = self.grip_site
+        jacobian, _ = point_jacobians(sim, int(self.model.site_bodyid[site]), sim.site_xpos[:, site])
+        return (jacobian @ sim.qvel[..., None])[..., 0]  # type: ignore[no-any-return]
+
+    def claw_cube_contacts(self, sim: SimArrays) -> dict[str, NDArray[np.int64]]:
+        """Number of capsules of each claw half touching the cube."""
+        touching = self.contact_counts(sim)[:, :8] > 0
+        return {"right": touching[:, :4].sum(axis=1), "left": touching[:, 4:].sum(axis=1)}
+
+    def cube_off_claw_segment(self, sim: SimArrays) -> tuple[Array, Array]:
+        """Where the cube's centre projects on the segment from the right to the left claw site (0 at the right site,
+        1 at the left) and its offset from that projection (world frame, m)."""
+        right, left = sim.site_xpos[:, self.claw_sites[0]], sim.site_xpos[:, self.claw_sites[1]]
+        cube = self.cube_pos(sim)
+        span = left - right
+        t = np.einsum("ni,ni->n", cube - right, span) / np.einsum("ni,ni->n", span, span)
+        return t, cube - right - t[:, None] * span
+
+    def cube_off_claw_segment_in_forearm_frame(self, sim: SimArrays) -> tuple[Array, Array]:
+        """``cube_off_claw_segment`` with the offset in the forearm's frame (x along the forearm, z the hinge axis)."""
+        t, offset_world = self.cube_off_claw_segment(sim)
+        return t, np.einsum("nji,nj->ni", self.forearm_frame(sim), offset_world)
+
+    def cube_between_claws(self, sim: SimArrays) -> Flags:
+        """Whether the cube's centre lies between the claw halves: its projection on the segment from the right to
+        the left claw site falls inside the segment, and its offset from the segment is small (``grasp_test``:
+        ``"between"`` at most 2 cm in all, a cube held by the top or bottom capsules only sits ~1 cm off the sites'
+        plane and one pressed from above >= 3 cm; ``"per_axis"`` at most 2.5 cm along the forearm and along the
+        claw's hinge axis, each)."""
+        if self.grasp_test == "between":
+            t, offset = self.cube_off_claw_segment(sim)
+            return (t > 0.0) & (t < 1.0) & (norm(offset) < BETWEEN_TOLERANCE)  # type: ignore[no-any-return]
+        t, offset = self.cube_off_claw_segment_in_forearm_frame(sim)
+        close = (np.abs(offset[:, 0]) <= PER_AXIS_TOLERANCE) & (np.abs(offset[:, 2]) <= PER_AXIS_TOLERANCE)
+        return (t > 0.0) & (t < 1.0) & close  # type: ignore[no-any-return]
+
+    def contact_summary(self, sim: SimArrays) -> dict[str, NDArray[np.int64]]:
+        """All contact counts the reward, observation and success need, from one read of the contact sensors."""
+        counts = self.contact_counts(sim)
+        touching = counts[:, :8] > 0
+        summary = {"right": touching[:, :4].sum(axis=1), "left": touching[:, 4:].sum(axis=1)}
+        summary["floor"] = counts[:, _BOTTOM_FLOOR_ROWS].sum(axis=1).astype(np.int64)
+        summary["claw_claw"] = np.minimum(counts[:, 16:32].sum(axis=1), 2).astype(np.int64)
+        summary["claw_floor"] = (counts[:, 8:16] > 0).any(axis=1).astype(np.int64)
+        if self.grasp_test == "touch":
+            summary["between"] = np.zeros(sim.n, dtype=np.int64)
+        else:
+            summary["between"] = self.cube_between_claws(sim).astype(np.int64)
+        return summary
+
+    def is_grasped(self, contacts: dict[str, NDArray[np.int64]]) -> Flags:
+        touched = (contacts["right"] > 0) & (contacts["left"] > 0)
+        return touched if self.grasp_test == "touch" else touched & (contacts["between"] > 0)  # type: ignore[no-any-return]
+
+    def reach_distance(self, sim: SimArrays) -> Array:
+        """The distance ``reward_reach`` shrinks (m): grip site to cube centre, or the thesis' claw terms
+        ``|right - cube| + |left - cube| - |left - right|``, zero exactly when the cube's centre lies on the segment
+        between the claw sites: they pull the claw to straddle the cube, and to open for it, rather than towards a
+        point that a closed claw would press onto the cube."""
+        cube = self.cube_pos(sim)
+        if self.reach_distance_kind == "grip":
+            return norm(sim.site_xpos[:, self.grip_site] - cube)
+        right, left = sim.site_xpos[:, self.claw_sites[0]], sim.site_xpos[:, self.claw_sites[1]]
+        return norm(right - cube) + norm(left - cube) - norm(left - right)  # type: ignore[no-any-return]
+
+    def success(self, sim: SimArrays) -> Flags:
+        return (self.cube_height(sim) >= self.lift_height) & self.is_grasped(self.contacts)  # type: ignore[no-any-return]
+
+    # ------------------------------------------------------------------ stepping
+    def controls(self, sim: SimArrays, action: Array) -> Array:
+        if self.control == "joint_torque":
+            return action
+        arm = grip_down_commands(sim, self.max_grip_speed * action[:, :3], self.grip_priority)
+        claw = action[:, 3]
+        if self.claw_rate is not None:  # the action moves the servo's target angle; ctrl aims the servo there
+            self.claw_target = np.clip(self.claw_target + self.claw_rate * claw, *CLAW_TARGET_RANGE)
+            claw = (self.claw_target - CLAW_OPEN_TARGET) / CLAW_SERVO_SLOPE
+        return np.clip(np.concatenate([arm, claw[:, None]], axis=1), self.ctrl_low, self.ctrl_high)  # type: ignore[no-any-return]
+
+    # ------------------------------------------------------------------ reward
+    def reward(self, sim: SimArrays, action: Array) -> tuple[Array, dict[str, Any]]:
+        contacts = self.contacts
+        height = self.cube_height(sim)
+        ctrl = -self.reward_control_weight * np.square(action).sum(axis=1)
+        cube = self.cube_pos(sim)
+        grasped = self.is_grasped(contacts)
+        n_cube = contacts["right"] + contacts["left"]
+        info: dict[str, Any] = {"cube_height": height, "claw_cube_contacts": n_cube}
+        if self.reward_mode == "thesis":
+            right, left = sim.site_xpos[:, self.claw_sites[0]], sim.site_xpos[:, self.claw_sites[1]]
+            lifted = (height >= self.lift_height) & (n_cube > 3)
+            self.lift_bonus_paid = lifted
+            terms = {
+                "reward_dist": -norm(sim.site_xpos[:, self.palm_site] - cube) - norm(right - cube) - norm(left - cube)
+                + norm(left - right),
+                "reward_ctrl": ctrl,
+                "reward_contact": n_cube.astype(np.float64),
+                "reward_floor": -contacts["floor"].astype(np.float64),
+                "reward_claw_collision": np.where(n_cube <= 4, -contacts["claw_claw"].astype(np.float64), 0.0),
+                "reward_lift": np.where(lifted, 1000.0 + 1000.0 * height, 0.0),
+            }  # fmt: skip
+            info.update(terms)
+            return sum(terms.values()), info  # type: ignore[return-value]
+        solved = grasped & (height >= self.lift_height)
+        terms = {
+            "reward_reach": self.reward_reach_weight * (1.0 - np.tanh(10.0 * self.reach_distance(sim))),
+            "reward_grasp": self.reward_grasp_weight * n_cube / 8.0,
+            "reward_lift": self.reward_lift_weight * grasped * np.minimum(np.maximum(height, 0.0) / self.lift_height, 1.0),
+            "reward_hold": self.reward_hold_weight * solved.astype(np.float64),
+            "reward_ctrl": ctrl,
+        }
+        # the floor and squeeze terms are added one after the other, in this order, to the sum of the others
+        if self.reward_squeeze_weight:
+            squeeze = np.minimum(np.maximum(self.claw_torque(sim), 0.0) / self.squeeze_torque, 1.0)
+        else:
+            squeeze = np.zeros(sim.n)
+        extra = {
+            "reward_floor": -self.reward_floor_weight * contacts["claw_floor"],
+            "reward_squeeze": self.reward_squeeze_weight * grasped * squeeze,
+        }
+        reward = sum(terms.values())
+        for value in extra.values():
+            reward = reward + value
+        info.update(terms)
+        info.update(extra)
+        return reward, info  # type: ignore[return-value]
+
+    def terminal(self, sim: SimArrays) -> Flags:
+        if not self.terminate_on_success:
+            return np.zeros(sim.n, dtype=bool)
+        # thesis mode: the episode ends with the lift bonus (height and more than 3 capsules on the cube)
+        return self.lift_bonus_paid.copy() if self.reward_mode == "thesis" else self.success(sim)
+
+    # ------------------------------------------------------------------ observation and reset
+    def joint_space_observation(self, sim: SimArrays) -> Array:
+        qpos, qvel = sim.qpos, sim.qvel
+        angles = qpos[:, self.arm_qpos]
+        cube = self.cube_pos(sim)
+        # the observation is computed first after every physics change (step and reset): read contacts once here
+        self.contacts = contacts = self.contact_summary(sim)
+        parts = [
+            np.cos(angles),
+            np.sin(angles),
+            qpos[:, self.claw_qpos, None],
+            qvel[:, self.arm_qvel],
+            qvel[:, self.claw_qvel, None],
+            cube,
+            sim.site_xpos[:, self.palm_site] - cube,
+            sim.site_xpos[:, self.claw_sites[0]] - cube,
+            sim.site_xpos[:, self.claw_sites[1]] - cube,
+            (contacts["right"] > 0)[:, None].astype(np.float64),
+            (contacts["left"] > 0)[:, None].astype(np.float64),
+        ]
+        if self.observe_claw_torque:
+            parts.append(self.claw_torque(sim)[:, None])
+        return np.concatenate(parts, axis=1)
+
+    def observe(self, sim: SimArrays) -> Array:
+        if self.observation == "joint":
+            observation = self.joint_space_observation(sim)
+        else:
+            forearm = self.forearm_frame(sim)
+            kept = TASK_KEPT_JOINT_ROWS if self.observe_claw_torque else TASK_KEPT_JOINT_ROWS[:-1]
+            parts = [self.grip_velocity(sim), forearm[:, :, 0], forearm[:, :, 2], self.joint_space_observation(sim)[:, kept]]
+            observation = np.concatenate(parts, axis=1)
+        if self.cube_rotation is not None:
+            observation = np.concatenate([observation, self.cube_axes(sim)], axis=1)
+        return observation
+
+    def sample_start(self, rng: np.random.Generator) -> tuple[Array, Array, None]:
+        noise = self.reset_noise_scale
+        qpos = self.init_qpos.copy()
+        qpos[self.arm_qpos] += rng.uniform(-noise, noise, size=len(ARM_JOINTS))
+        claw = rng.uniform(-noise, noise)
+        qpos[self.claw_qpos] = claw
+        qpos[self.claw_left_qpos] = -claw
+        radius = 0.1 * np.sqrt(rng.uniform())
+        angle = rng.uniform(-np.pi, np.pi)
+        cube = np.array([radius * np.cos(angle), radius * np.sin(angle), FLOOR_Z + CUBE_HALF_SIZE])
+        qpos[self.cube_qpos] = cube - self.cube_body_pos
+        qvel = self.init_qvel + rng.uniform(-0.005, 0.005, size=self.model.nv)
+        qvel[self.cube_dofs] = 0.0
+        return qpos, qvel, None
+
+    def started(self, sim: SimArrays, ids: NDArray[np.int64]) -> None:
+        self.lift_bonus_paid[ids] = False
+        self.claw_target[ids] = sim.qpos[ids, self.claw_qpos]
 
 
 class Grasper3DEnv(ArmEnv):
@@ -309,6 +658,8 @@ class Grasper3DEnv(ArmEnv):
       radius 0.1 m.
     """
 
+    task: Grasper3DTask
+
     def __init__(
         self,
         xml_file: str | None = None,
@@ -339,320 +690,46 @@ class Grasper3DEnv(ArmEnv):
         lift_height: float = 0.05,
         **kwargs: Any,
     ):
-        _check_choice("claw", claw, tuple(CLAWS))
-        _check_choice("control", control, CONTROLS)
-        _check_choice("ik_mode", ik_mode, IK_MODES)
-        _check_choice("observation", observation, OBSERVATIONS)
-        _check_choice("cube_rotation", cube_rotation, (None, *CUBE_ROTATIONS))
-        _check_choice("start_pose", start_pose, tuple(START_POSES))
-        _check_choice("reward_mode", reward_mode, REWARD_MODES)
-        _check_choice("reach_distance", reach_distance, REACH_DISTANCES)
-        _check_choice("grasp_test", grasp_test, GRASP_TESTS)
-        for name, flag in (("observe_claw_torque", observe_claw_torque), ("terminate_on_success", terminate_on_success)):
-            if not (flag is None or isinstance(flag, bool)):
-                raise ValueError(f"{name} must be a bool or None, got {flag!r}")
-        _check_amount("max_grip_speed", max_grip_speed)
-        if claw_rate is not None:
-            _check_amount("claw_rate", claw_rate, "positive number or None")
-        if claw_rate is not None and (control != "grip_velocity" or claw != "servo"):
-            raise ValueError("claw_rate moves the servo claw's target: it needs control='grip_velocity' and claw='servo'")
-        _check_amount("squeeze_torque", squeeze_torque)
-        _check_amount("lift_height", lift_height)
-        _check_amount("reset_noise_scale", reset_noise_scale, "non-negative number")
-        servo = claw == "servo"
-        observe_torque = servo if observe_claw_torque is None else observe_claw_torque
-        squeeze_weight = (2.0 if servo else 0.0) if reward_squeeze_weight is None else reward_squeeze_weight
-        if (squeeze_weight or observe_torque) and not servo:
-            raise ValueError(
-                "reward_squeeze_weight and observe_claw_torque read the claw servo's torque: they need claw='servo'"
-            )
-        utils.EzPickle.__init__(
-            self, xml_file=xml_file, frame_skip=frame_skip, default_camera_config=default_camera_config, claw=claw,
-            control=control, ik_mode=ik_mode, max_grip_speed=max_grip_speed, claw_rate=claw_rate,
-            observation=observation, observe_claw_torque=observe_claw_torque, cube_rotation=cube_rotation,
-            start_pose=start_pose, reward_mode=reward_mode, reach_distance=reach_distance, grasp_test=grasp_test,
+        options = dict(
+            xml_file=xml_file, frame_skip=frame_skip, claw=claw, control=control, ik_mode=ik_mode,
+            max_grip_speed=max_grip_speed, claw_rate=claw_rate, observation=observation,
+            observe_claw_torque=observe_claw_torque, cube_rotation=cube_rotation, start_pose=start_pose,
+            reward_mode=reward_mode, reach_distance=reach_distance, grasp_test=grasp_test,
             reward_reach_weight=reward_reach_weight, reward_grasp_weight=reward_grasp_weight,
             reward_lift_weight=reward_lift_weight, reward_hold_weight=reward_hold_weight,
             reward_floor_weight=reward_floor_weight, reward_squeeze_weight=reward_squeeze_weight,
             squeeze_torque=squeeze_torque, reward_control_weight=reward_control_weight,
             terminate_on_success=terminate_on_success, reset_noise_scale=reset_noise_scale, lift_height=lift_height,
-            **kwargs,
         )  # fmt: skip
-        self.control = control
-        self.max_grip_speed = float(max_grip_speed)
-        self._grip_priority = ik_mode == "priority"
-        self._claw_rate = claw_rate
-        self._claw_target = CLAW_OPEN_TARGET
-        self._observation = observation
-        self._observe_claw_torque = observe_torque
-        self._cube_rotation = cube_rotation  # read while the base class builds the model
-        self._reward_mode = reward_mode
-        self._reach_distance_kind = reach_distance
-        self._grasp_test = grasp_test
-        self._reward_reach_weight = reward_reach_weight
-        self._reward_grasp_weight = reward_grasp_weight
-        self._reward_lift_weight = reward_lift_weight
-        self._reward_hold_weight = reward_hold_weight
-        self._reward_floor_weight = reward_floor_weight
-        self._reward_squeeze_weight = squeeze_weight
-        self._squeeze_torque = float(squeeze_torque)
-        thesis = reward_mode == "thesis"
-        self._reward_control_weight = (1.0 if thesis else 0.1) if reward_control_weight is None else reward_control_weight
-        self._terminate_on_success = thesis if terminate_on_success is None else terminate_on_success
-        self._reset_noise_scale = reset_noise_scale
-        self._lift_height = lift_height
-        self._lift_bonus_paid = False
-        self._contacts = {"right": 0, "left": 0, "floor": 0, "claw_claw": 0, "claw_floor": 0, "between": 0}
-        observation_dim = 31 if observation == "joint" else 25
-        observation_dim += int(observe_torque) + (6 if cube_rotation is not None else 0)
-        ArmEnv.__init__(self, xml_file or CLAWS[claw], frame_skip, default_camera_config, observation_dim, **kwargs)
-        self._ids = self._named_ids()
-        self._arm_qpos = np.array([self.model.joint(j).qposadr[0] for j in ARM_JOINTS])
-        self._cube_qpos = np.array([self.model.joint(f"cube_{a}").qposadr[0] for a in "xyz"])
-        if start_pose != "stretched":
-            self.init_qpos[self._arm_qpos] = START_POSES[start_pose]
+        task = Grasper3DTask(**options)
+        utils.EzPickle.__init__(self, default_camera_config=default_camera_config, **options, **kwargs)
+        self.control = task.control
+        self.max_grip_speed = task.max_grip_speed
+        ArmEnv.__init__(self, task, default_camera_config, **kwargs)
 
-    def _initialize_simulation(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
-        """The model of ``xml_file``, with the cube's rotation joint where ``cube_rotation`` asks for one."""
-        if self._cube_rotation is None:
-            return super()._initialize_simulation()  # type: ignore[no-any-return]
-        spec = mujoco.MjSpec.from_file(self.fullpath)
-        add_cube_rotation(spec, self._cube_rotation)
-        model = spec.compile()
-        model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.width)
-        model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
-        return model, mujoco.MjData(model)
-
-    def _set_action_space(self) -> Box:
-        if self.control == "grip_velocity":
-            self.action_space = Box(low=-1.0, high=1.0, shape=(4,), dtype=np.float32)
-            return self.action_space
-        return super()._set_action_space()  # type: ignore[no-any-return]
-
-    def _named_ids(self) -> dict[str, Any]:
-        """Ids of the named joints, geoms, sites and actuators, looked up once."""
-        model = self.model
-        claw_geoms = {side: self.geom_mask([f"claw_{side}_{part}" for part in CLAW_PARTS]) for side in CLAW_SIDES}
-        return {
-            "claw_geoms": claw_geoms,
-            "all_claw_geoms": claw_geoms["right"] | claw_geoms["left"],
-            "bottom_claw_geoms": self.geom_mask([f"claw_{s}_{p}" for s in CLAW_SIDES for p in CLAW_PARTS if "bottom" in p]),
-            "cube_geom": self.geom_mask(["cube"]),
-            "floor_geom": self.geom_mask(["floor"]),
-            "arm_qvel": np.array([model.joint(j).dofadr[0] for j in ARM_JOINTS]),
-            "claw_qpos": int(model.joint("claw_right").qposadr[0]),
-            "claw_left_qpos": int(model.joint("claw_left").qposadr[0]),
-            "claw_qvel": int(model.joint("claw_right").dofadr[0]),
-            "cube_dofs": np.array([model.joint(f"cube_{a}").dofadr[0] for a in "xyz"]),
-            "cube_body_pos": model.body("cube").pos.copy(),
-            "claw_actuator": int(model.actuator("claw").id),
-            "grip_site": int(model.site("grip").id),
-            "grip_jacobian": np.zeros((3, model.nv)),
-        }
-
-    # ------------------------------------------------------------------ named quantities
+    # ------------------------------------------------------------------ the task's quantities for this simulation
     def cube_pos(self) -> NDArray[np.float64]:
         return self.data.geom("cube").xpos
 
     def cube_height(self) -> float:
         """Height of the cube's bottom face above the floor, from the cube geom (not its body frame)."""
-        return float(self.cube_pos()[2] - CUBE_HALF_SIZE - FLOOR_Z)
-
-    def cube_axes(self) -> NDArray[np.float64]:
-        """The cube's x and z axes in the world frame (the first and last columns of its rotation matrix)."""
-        rotation = self.data.geom("cube").xmat.reshape(3, 3)
-        return np.concatenate([rotation[:, 0], rotation[:, 2]])
-
-    def claw_torque(self) -> float:
-        """The claw servo's torque on ``claw_right`` (N m, positive closes)."""
-        return float(self.data.actuator_force[self._ids["claw_actuator"]])
-
-    def grip_velocity(self) -> NDArray[np.float64]:
-        """Linear velocity of the grip site in the world frame (m/s): its Jacobian times the joint velocities, as
-        Gymnasium Robotics' Fetch observes its grip (``qvel`` is the step's last; MuJoCo's own ``cvel`` lags it by one
-        physics step)."""
-        jacobian = self._ids["grip_jacobian"]
-        mujoco.mj_jacSite(self.model, self.data, jacobian, None, self._ids["grip_site"])
-        return jacobian @ self.data.qvel  # type: ignore[no-any-return]
+        return float(self.task.cube_height(self.sim)[0])
 
     def claw_cube_contacts(self) -> dict[str, int]:
         """Number of capsules of each claw half touching the cube."""
-        pairs, claws, cube = self.contact_pairs(), self._ids["claw_geoms"], self._ids["cube_geom"]
-        return {side: self.touching_geoms(pairs, claws[side], cube) for side in CLAW_SIDES}
+        return {side: int(count[0]) for side, count in self.task.claw_cube_contacts(self.sim).items()}
 
     def cube_between_claws(self) -> bool:
-        """Whether the cube's centre lies between the claw halves: its projection on the segment from the right to
-        the left claw site falls inside the segment, and its offset from the segment is small (``grasp_test``:
-        ``"between"`` at most 2 cm in all, a cube held by the top or bottom capsules only sits ~1 cm off the sites'
-        plane and one pressed from above >= 3 cm; ``"per_axis"`` at most 2.5 cm along the forearm and along the
-        claw's hinge axis, each)."""
-        if self._grasp_test == "between":
-            t, offset = self._cube_off_claw_segment()
-            return 0.0 < t < 1.0 and float(np.linalg.norm(offset)) < BETWEEN_TOLERANCE
-        t, offset = self.cube_off_claw_segment_in_forearm_frame()
-        return 0.0 < t < 1.0 and abs(offset[0]) <= PER_AXIS_TOLERANCE and abs(offset[2]) <= PER_AXIS_TOLERANCE
-
-    def _cube_off_claw_segment(self) -> tuple[float, NDArray[np.float64]]:
-        """Where the cube's centre projects on the segment from the right to the left claw site (0 at the right site,
-        1 at the left) and its offset from that projection (world frame, m)."""
-        right, left, cube = self.site_pos("claw_right"), self.site_pos("claw_left"), self.cube_pos()
-        span = left - right
-        t = float((cube - right) @ span / (span @ span))
-        return t, cube - right - t * span
+        """Whether the cube's centre lies between the claw halves (``Grasper3DTask.cube_between_claws``)."""
+        return bool(self.task.cube_between_claws(self.sim)[0])
 
     def cube_off_claw_segment_in_forearm_frame(self) -> tuple[float, NDArray[np.float64]]:
-        """``_cube_off_claw_segment`` with the offset in the forearm's frame (x along the forearm, z the hinge axis)."""
-        t, offset_world = self._cube_off_claw_segment()
-        forearm = self.data.body("forearm").xmat.reshape(3, 3)  # columns: x along the forearm, z the hinge axis
-        return t, forearm.T @ offset_world
+        t, offset = self.task.cube_off_claw_segment_in_forearm_frame(self.sim)
+        return float(t[0]), offset[0]
 
-    def _contact_summary(self, pairs: NDArray[np.int32]) -> dict[str, int]:
-        """All contact counts the reward, observation and success need, from one read of the contacts."""
-        ids = self._ids
-        claws, cube, floor = ids["claw_geoms"], ids["cube_geom"], ids["floor_geom"]
-        summary = {side: self.touching_geoms(pairs, claws[side], cube) for side in CLAW_SIDES}
-        summary["floor"] = int(self.touching(pairs, ids["bottom_claw_geoms"], floor).sum())
-        summary["claw_claw"] = min(int(self.touching(pairs, claws["right"], claws["left"]).sum()), 2)
-        summary["claw_floor"] = int(self.touching(pairs, ids["all_claw_geoms"], floor).any())
-        summary["between"] = int(self._grasp_test != "touch" and self.cube_between_claws())
-        return summary
-
-    def _is_grasped(self, contacts: dict[str, int]) -> bool:
-        touched = contacts["right"] > 0 and contacts["left"] > 0
-        return touched and (self._grasp_test == "touch" or contacts["between"] > 0)
-
-    def _reach_distance(self) -> float:
-        """The distance ``reward_reach`` shrinks (m): grip site to cube centre, or the thesis' claw terms
-        ``|right - cube| + |left - cube| - |left - right|``, zero exactly when the cube's centre lies on the segment
-        between the claw sites: they pull the claw to straddle the cube, and to open for it, rather than towards a
-        point that a closed claw would press onto the cube."""
-        if self._reach_distance_kind == "grip":
-            return float(np.linalg.norm(self.site_pos("grip") - self.cube_pos()))
-        right, left, cube = self.site_pos("claw_right"), self.site_pos("claw_left"), self.cube_pos()
-        return float(np.linalg.norm(right - cube) + np.linalg.norm(left - cube) - np.linalg.norm(left - right))
-
-    def _is_success(self) -> bool:
-        return self.cube_height() >= self._lift_height and self._is_grasped(self._contacts)
-
-    # ------------------------------------------------------------------ stepping
-    def _simulate(self, action: NDArray[np.float64]) -> bool:
-        if self.control == "joint_torque":
-            return super()._simulate(action)
-        arm = grip_down_commands(self, self.max_grip_speed * action[:3], self._grip_priority)
-        claw = action[3]
-        if self._claw_rate is not None:  # the action moves the servo's target angle; ctrl aims the servo there
-            self._claw_target = float(np.clip(self._claw_target + self._claw_rate * claw, *CLAW_TARGET_RANGE))
-            claw = (self._claw_target - CLAW_OPEN_TARGET) / CLAW_SERVO_SLOPE
-        ctrl = np.clip(np.concatenate([arm, [claw]]), self._ctrl_low, self._ctrl_high)
-        return super()._simulate(ctrl)
-
-    # ------------------------------------------------------------------ reward
-    def _get_rew(self, action: NDArray[np.float64]) -> tuple[float, dict[str, Any]]:
-        contacts = self._contacts
-        height = self.cube_height()
-        ctrl = -self._reward_control_weight * float(np.square(action).sum())
-        cube = self.cube_pos()
-        grasped = self._is_grasped(contacts)
-        n_cube = contacts["right"] + contacts["left"]
-        info: dict[str, Any] = {"cube_height": height, "claw_cube_contacts": n_cube}
-        if self._reward_mode == "thesis":
-            right, left = self.site_pos("claw_right"), self.site_pos("claw_left")
-            lifted = height >= self._lift_height and n_cube > 3
-            self._lift_bonus_paid = lifted
-            terms = {
-                "reward_dist": float(
-                    -np.linalg.norm(self.site_pos("palm") - cube) - np.linalg.norm(right - cube)
-                    - np.linalg.norm(left - cube) + np.linalg.norm(left - right)
-                ),
-                "reward_ctrl": ctrl,
-                "reward_contact": float(n_cube),
-                "reward_floor": -float(contacts["floor"]),
-                "reward_claw_collision": -float(contacts["claw_claw"]) if n_cube <= 4 else 0.0,
-                "reward_lift": 1000.0 + 1000.0 * height if lifted else 0.0,
-            }  # fmt: skip
-            info.update(terms)
-            return float(sum(terms.values())), info
-        solved = grasped and height >= self._lift_height
-        terms = {
-            "reward_reach": self._reward_reach_weight * (1.0 - float(np.tanh(10.0 * self._reach_distance()))),
-            "reward_grasp": self._reward_grasp_weight * n_cube / 8.0,
-            "reward_lift": self._reward_lift_weight * float(grasped) * min(max(height, 0.0) / self._lift_height, 1.0),
-            "reward_hold": self._reward_hold_weight * float(solved),
-            "reward_ctrl": ctrl,
-        }
-        # the floor and squeeze terms are added one after the other, in this order, to the sum of the others
-        squeeze = min(max(self.claw_torque(), 0.0) / self._squeeze_torque, 1.0) if self._reward_squeeze_weight else 0.0
-        extra = {
-            "reward_floor": -self._reward_floor_weight * contacts["claw_floor"],
-            "reward_squeeze": self._reward_squeeze_weight * float(grasped) * squeeze,
-        }
-        reward = float(sum(terms.values()))
-        for value in extra.values():
-            reward += value
-        info.update(terms)
-        info.update(extra)
-        return reward, info
-
-    def _is_terminal(self) -> bool:
-        if not self._terminate_on_success:
-            return False
-        # thesis mode: the episode ends with the lift bonus (height and more than 3 capsules on the cube)
-        return self._lift_bonus_paid if self._reward_mode == "thesis" else self._is_success()
-
-    # ------------------------------------------------------------------ observation and reset
-    def _joint_space_obs(self) -> NDArray[np.float64]:
-        ids = self._ids
-        qpos, qvel = self.data.qpos, self.data.qvel
-        angles = qpos[self._arm_qpos]
-        cube = self.cube_pos()
-        # the observation is computed first after every physics change (step and reset): read contacts once here
-        self._contacts = contacts = self._contact_summary(self.contact_pairs())
-        parts = [
-            np.cos(angles),
-            np.sin(angles),
-            [qpos[ids["claw_qpos"]]],
-            qvel[ids["arm_qvel"]],
-            [qvel[ids["claw_qvel"]]],
-            cube,
-            self.site_pos("palm") - cube,
-            self.site_pos("claw_right") - cube,
-            self.site_pos("claw_left") - cube,
-            [float(contacts["right"] > 0), float(contacts["left"] > 0)],
-        ]
-        if self._observe_claw_torque:
-            parts.append([self.claw_torque()])
-        return np.concatenate(parts)
-
-    def _get_obs(self) -> NDArray[np.float64]:
-        if self._observation == "joint":
-            observation = self._joint_space_obs()
-        else:
-            forearm = self.data.body("forearm").xmat.reshape(3, 3)  # columns: x along the forearm, z the hinge axis
-            velocity = self.grip_velocity()
-            kept = TASK_KEPT_JOINT_ROWS if self._observe_claw_torque else TASK_KEPT_JOINT_ROWS[:-1]
-            observation = np.concatenate([velocity, forearm[:, 0], forearm[:, 2], self._joint_space_obs()[kept]])
-        if self._cube_rotation is not None:
-            observation = np.concatenate([observation, self.cube_axes()])
-        return observation
-
-    def reset_model(self) -> NDArray[np.float64]:
-        self._lift_bonus_paid = False
-        ids = self._ids
-        noise = self._reset_noise_scale
-        qpos = self.init_qpos.copy()
-        qpos[self._arm_qpos] += self.np_random.uniform(-noise, noise, size=len(ARM_JOINTS))
-        claw = self.np_random.uniform(-noise, noise)
-        qpos[ids["claw_qpos"]] = claw
-        qpos[ids["claw_left_qpos"]] = -claw
-        radius = 0.1 * np.sqrt(self.np_random.uniform())
-        angle = self.np_random.uniform(-np.pi, np.pi)
-        cube = np.array([radius * np.cos(angle), radius * np.sin(angle), FLOOR_Z + CUBE_HALF_SIZE])
-        qpos[self._cube_qpos] = cube - ids["cube_body_pos"]
-        qvel = self.init_qvel + self.np_random.uniform(-0.005, 0.005, size=self.model.nv)
-        qvel[ids["cube_dofs"]] = 0.0
-        self.set_state(qpos, qvel)
-        self._claw_target = float(self.data.qpos[ids["claw_qpos"]])
-        return self._get_obs()
+    def is_grasped(self) -> bool:
+        """Whether the claw holds the cube (``grasp_test``), as of the last observation."""
+        return bool(self.task.is_grasped(self.task.contacts)[0])
 
 
 def add_cube_rotation(spec: mujoco.MjSpec, cube_rotation: str = "yaw") -> None:
@@ -676,4 +753,4 @@ def _check_choice(name: str, value: Any, choices: tuple[Any, ...]) -> None:
         raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
 
 
-__all__ = ["Grasper3DEnv", "add_cube_rotation", "asset_path"]
+__all__ = ["Grasper3DEnv", "Grasper3DTask", "add_cube_rotation", "asset_path"]

@@ -8,9 +8,71 @@ import numpy as np
 from gymnasium import utils
 from numpy.typing import NDArray
 
-from grasp_envs.base import ArmEnv, check_near_bonus, near_bonus
+from grasp_envs.base import ArmEnv, ArmTask, SimArrays, check_near_bonus, near_bonus, norm
 
 DEFAULT_CAMERA_CONFIG: dict[str, Any] = {"trackbodyid": 0, "distance": 0.9, "elevation": -90.0}
+
+
+class Reacher2DTask(ArmTask):
+    """Reacher2D's step logic over ``n`` simulations (options: ``Reacher2DEnv``)."""
+
+    def __init__(
+        self,
+        xml_file: str = "reacher2d.xml",
+        frame_skip: int = 2,
+        reward_dist_weight: float = 1.0,
+        reward_control_weight: float = 1.0,
+        reward_near_weight: float = 0.5,
+        near_scale: float = 0.05,
+        reset_noise_scale: float = 0.1,
+        success_distance: float = 0.02,
+    ):
+        check_near_bonus(reward_near_weight, near_scale)
+        super().__init__(xml_file, frame_skip, observation_dim=10)
+        self.reward_dist_weight = reward_dist_weight
+        self.reward_control_weight = reward_control_weight
+        self.reward_near_weight = reward_near_weight
+        self.near_scale = near_scale
+        self.reset_noise_scale = reset_noise_scale
+        self.success_distance = success_distance
+
+    def setup(self, model: Any, n: int) -> None:
+        super().setup(model, n)
+        self._fingertip = self.site_id("fingertip")
+
+    def fingertip_to_target(self, sim: SimArrays) -> NDArray[np.float64]:
+        return sim.site_xpos[:, self._fingertip] - sim.mocap_pos[:, 0]
+
+    def distance(self, sim: SimArrays) -> NDArray[np.float64]:
+        return norm(self.fingertip_to_target(sim))
+
+    def reward(self, sim: SimArrays, action: NDArray[np.float64]) -> tuple[NDArray[np.float64], dict[str, Any]]:
+        distance = self.distance(sim)
+        reward_dist = -self.reward_dist_weight * distance
+        reward_ctrl = -self.reward_control_weight * np.square(action).sum(axis=1)
+        reward_near = near_bonus(distance, self.reward_near_weight, self.near_scale)
+        info = {"reward_dist": reward_dist, "reward_ctrl": reward_ctrl, "distance": distance, "reward_near": reward_near}
+        return reward_dist + reward_ctrl + reward_near, info
+
+    def success(self, sim: SimArrays) -> NDArray[np.bool_]:
+        return self.distance(sim) < self.success_distance  # type: ignore[no-any-return]
+
+    def observe(self, sim: SimArrays) -> NDArray[np.float64]:
+        theta = sim.qpos[:, :2]
+        parts = [np.cos(theta), np.sin(theta), sim.mocap_pos[:, 0, :2], sim.qvel[:, :2], self.fingertip_to_target(sim)[:, :2]]
+        return np.concatenate(parts, axis=1)
+
+    def sample_start(self, rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        noise = self.reset_noise_scale
+        qpos = self.init_qpos + rng.uniform(-noise, noise, size=self.model.nq)
+        qvel = self.init_qvel + rng.uniform(-0.005, 0.005, size=self.model.nv)
+        while True:
+            goal = rng.uniform(-0.2, 0.2, size=2)
+            if np.linalg.norm(goal) < 0.2:
+                break
+        mocap_pos = self.default_mocap_pos.copy()
+        mocap_pos[0, :2] = goal
+        return qpos, qvel, mocap_pos
 
 
 class Reacher2DEnv(ArmEnv):
@@ -81,6 +143,8 @@ class Reacher2DEnv(ArmEnv):
       state), success is reported.
     """
 
+    task: Reacher2DTask
+
     def __init__(
         self,
         xml_file: str = "reacher2d.xml",
@@ -94,52 +158,17 @@ class Reacher2DEnv(ArmEnv):
         success_distance: float = 0.02,
         **kwargs: Any,
     ):
-        check_near_bonus(reward_near_weight, near_scale)
+        task = Reacher2DTask(
+            xml_file, frame_skip, reward_dist_weight, reward_control_weight, reward_near_weight, near_scale,
+            reset_noise_scale, success_distance,
+        )  # fmt: skip
         utils.EzPickle.__init__(
             self, xml_file=xml_file, frame_skip=frame_skip, default_camera_config=default_camera_config,
             reward_dist_weight=reward_dist_weight, reward_control_weight=reward_control_weight,
             reward_near_weight=reward_near_weight, near_scale=near_scale, reset_noise_scale=reset_noise_scale,
             success_distance=success_distance, **kwargs,
         )  # fmt: skip
-        self._reward_near_weight = reward_near_weight
-        self._near_scale = near_scale
-        self._reward_dist_weight = reward_dist_weight
-        self._reward_control_weight = reward_control_weight
-        self._reset_noise_scale = reset_noise_scale
-        self._success_distance = success_distance
-        ArmEnv.__init__(self, xml_file, frame_skip, default_camera_config, observation_dim=10, **kwargs)
-
-    def fingertip_to_target(self) -> NDArray[np.float64]:
-        return self.site_pos("fingertip") - self.data.mocap_pos[0]
+        ArmEnv.__init__(self, task, default_camera_config, **kwargs)
 
     def distance(self) -> float:
-        return float(np.linalg.norm(self.fingertip_to_target()))
-
-    def _get_rew(self, action: NDArray[np.float64]) -> tuple[float, dict[str, Any]]:
-        distance = self.distance()
-        reward_dist = -self._reward_dist_weight * distance
-        reward_ctrl = -self._reward_control_weight * float(np.square(action).sum())
-        reward_near = near_bonus(distance, self._reward_near_weight, self._near_scale)
-        info = {"reward_dist": reward_dist, "reward_ctrl": reward_ctrl, "distance": distance, "reward_near": reward_near}
-        return reward_dist + reward_ctrl + reward_near, info
-
-    def _is_success(self) -> bool:
-        return self.distance() < self._success_distance
-
-    def _get_obs(self) -> NDArray[np.float64]:
-        theta = self.data.qpos[:2]
-        return np.concatenate(
-            [np.cos(theta), np.sin(theta), self.data.mocap_pos[0, :2], self.data.qvel[:2], self.fingertip_to_target()[:2]]
-        )
-
-    def reset_model(self) -> NDArray[np.float64]:
-        noise = self._reset_noise_scale
-        qpos = self.init_qpos + self.np_random.uniform(-noise, noise, size=self.model.nq)
-        qvel = self.init_qvel + self.np_random.uniform(-0.005, 0.005, size=self.model.nv)
-        while True:
-            goal = self.np_random.uniform(-0.2, 0.2, size=2)
-            if np.linalg.norm(goal) < 0.2:
-                break
-        self.data.mocap_pos[0, :2] = goal
-        self.set_state(qpos, qvel)
-        return self._get_obs()
+        return float(self.task.distance(self.sim)[0])

@@ -9,11 +9,86 @@ import numpy as np
 from gymnasium import utils
 from numpy.typing import NDArray
 
-from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, check_near_bonus, near_bonus
+from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, ArmTask, SimArrays, check_near_bonus, near_bonus, norm
 
 ARM_JOINTS = ("shoulder_y", "shoulder_z", "elbow_y", "elbow_z")
 FLOOR_Z = -0.2
 TARGET_HALF_SIZE = 0.012
+
+
+class Reacher3DTask(ArmTask):
+    """Reacher3D's step logic over ``n`` simulations (options: ``Reacher3DEnv``)."""
+
+    def __init__(
+        self,
+        xml_file: str = "reacher3d.xml",
+        frame_skip: int = 2,
+        reward_dist_weight: float = 1.0,
+        reward_control_weight: float = 1.0,
+        reward_near_weight: float = 0.5,
+        near_scale: float = 0.05,
+        reset_noise_scale: float = 0.1,
+        success_distance: float = 0.02,
+        observation_dim: int = 18,
+    ):
+        check_near_bonus(reward_near_weight, near_scale)
+        super().__init__(xml_file, frame_skip, observation_dim)
+        self.reward_dist_weight = reward_dist_weight
+        self.reward_control_weight = reward_control_weight
+        self.reward_near_weight = reward_near_weight
+        self.near_scale = near_scale
+        self.reset_noise_scale = reset_noise_scale
+        self.success_distance = success_distance
+
+    def setup(self, model: Any, n: int) -> None:
+        super().setup(model, n)
+        self._palm = self.site_id("palm")
+
+    def target_pos(self, sim: SimArrays) -> NDArray[np.float64]:
+        return sim.mocap_pos[:, 0]
+
+    def palm_to_target(self, sim: SimArrays) -> NDArray[np.float64]:
+        return sim.site_xpos[:, self._palm] - self.target_pos(sim)
+
+    def distance(self, sim: SimArrays) -> NDArray[np.float64]:
+        return norm(self.palm_to_target(sim))
+
+    def reacher_terms(self, sim: SimArrays, action: NDArray[np.float64]) -> dict[str, Any]:
+        distance = self.distance(sim)
+        return {
+            "reward_dist": -self.reward_dist_weight * distance,
+            "reward_ctrl": -self.reward_control_weight * np.square(action).sum(axis=1),
+            "distance": distance,
+        }
+
+    def reward(self, sim: SimArrays, action: NDArray[np.float64]) -> tuple[NDArray[np.float64], dict[str, Any]]:
+        info = self.reacher_terms(sim, action)
+        info["reward_near"] = near_bonus(info["distance"], self.reward_near_weight, self.near_scale)
+        return info["reward_dist"] + info["reward_ctrl"] + info["reward_near"], info
+
+    def success(self, sim: SimArrays) -> NDArray[np.bool_]:
+        return self.distance(sim) < self.success_distance  # type: ignore[no-any-return]
+
+    def observe(self, sim: SimArrays) -> NDArray[np.float64]:
+        angles = sim.qpos[:, :4]
+        parts = [np.cos(angles), np.sin(angles), sim.qvel[:, :4], self.target_pos(sim), self.palm_to_target(sim)]
+        return np.concatenate(parts, axis=1)
+
+    def sample_target(self, rng: np.random.Generator) -> NDArray[np.float64]:
+        radius = 0.1 * np.sqrt(rng.uniform())
+        angle = rng.uniform(-np.pi, np.pi)
+        return np.array([radius * np.cos(angle), radius * np.sin(angle), FLOOR_Z + TARGET_HALF_SIZE])
+
+    def initial_qpos(self, rng: np.random.Generator) -> NDArray[np.float64]:
+        noise = self.reset_noise_scale
+        return self.init_qpos + rng.uniform(-noise, noise, size=self.model.nq)  # type: ignore[no-any-return]
+
+    def sample_start(self, rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        mocap_pos = self.default_mocap_pos.copy()
+        mocap_pos[0] = self.sample_target(rng)
+        qpos = self.initial_qpos(rng)
+        qvel = self.init_qvel + rng.uniform(-0.005, 0.005, size=self.model.nv)
+        return qpos, qvel, mocap_pos
 
 
 class Reacher3DEnv(ArmEnv):
@@ -95,7 +170,7 @@ class Reacher3DEnv(ArmEnv):
       is a mocap body.
     """
 
-    arm_joints: tuple[str, ...] = ARM_JOINTS
+    task: Reacher3DTask
 
     def __init__(
         self,
@@ -110,70 +185,17 @@ class Reacher3DEnv(ArmEnv):
         success_distance: float = 0.02,
         **kwargs: Any,
     ):
-        check_near_bonus(reward_near_weight, near_scale)
+        task = Reacher3DTask(
+            xml_file, frame_skip, reward_dist_weight, reward_control_weight, reward_near_weight, near_scale,
+            reset_noise_scale, success_distance,
+        )  # fmt: skip
         utils.EzPickle.__init__(
             self, xml_file=xml_file, frame_skip=frame_skip, default_camera_config=default_camera_config,
             reward_dist_weight=reward_dist_weight, reward_control_weight=reward_control_weight,
             reward_near_weight=reward_near_weight, near_scale=near_scale, reset_noise_scale=reset_noise_scale,
             success_distance=success_distance, **kwargs,
         )  # fmt: skip
-        self._reward_near_weight = reward_near_weight
-        self._near_scale = near_scale
-        self._init_reacher(reward_dist_weight, reward_control_weight, reset_noise_scale, success_distance)
-        ArmEnv.__init__(self, xml_file, frame_skip, default_camera_config, observation_dim=self._observation_dim, **kwargs)
-
-    _observation_dim = 18
-
-    def _init_reacher(
-        self, reward_dist_weight: float, reward_control_weight: float, reset_noise_scale: float, success_distance: float
-    ) -> None:
-        self._reward_dist_weight = reward_dist_weight
-        self._reward_control_weight = reward_control_weight
-        self._reset_noise_scale = reset_noise_scale
-        self._success_distance = success_distance
-
-    # named quantities
-    def target_pos(self) -> NDArray[np.float64]:
-        return self.data.mocap_pos[0]
-
-    def palm_to_target(self) -> NDArray[np.float64]:
-        return self.site_pos("palm") - self.target_pos()
+        ArmEnv.__init__(self, task, default_camera_config, **kwargs)
 
     def distance(self) -> float:
-        return float(np.linalg.norm(self.palm_to_target()))
-
-    def _reacher_terms(self, action: NDArray[np.float64]) -> dict[str, float]:
-        distance = self.distance()
-        return {
-            "reward_dist": -self._reward_dist_weight * distance,
-            "reward_ctrl": -self._reward_control_weight * float(np.square(action).sum()),
-            "distance": distance,
-        }
-
-    def _get_rew(self, action: NDArray[np.float64]) -> tuple[float, dict[str, Any]]:
-        info = self._reacher_terms(action)
-        info["reward_near"] = near_bonus(info["distance"], self._reward_near_weight, self._near_scale)
-        return info["reward_dist"] + info["reward_ctrl"] + info["reward_near"], info
-
-    def _is_success(self) -> bool:
-        return self.distance() < self._success_distance
-
-    def _get_obs(self) -> NDArray[np.float64]:
-        angles = self.data.qpos[:4]
-        return np.concatenate([np.cos(angles), np.sin(angles), self.data.qvel[:4], self.target_pos(), self.palm_to_target()])
-
-    def _sample_target(self) -> NDArray[np.float64]:
-        radius = 0.1 * np.sqrt(self.np_random.uniform())
-        angle = self.np_random.uniform(-np.pi, np.pi)
-        return np.array([radius * np.cos(angle), radius * np.sin(angle), FLOOR_Z + TARGET_HALF_SIZE])
-
-    def _initial_qpos(self) -> NDArray[np.float64]:
-        noise = self._reset_noise_scale
-        return self.init_qpos + self.np_random.uniform(-noise, noise, size=self.model.nq)
-
-    def reset_model(self) -> NDArray[np.float64]:
-        self.data.mocap_pos[0] = self._sample_target()
-        qpos = self._initial_qpos()
-        qvel = self.init_qvel + self.np_random.uniform(-0.005, 0.005, size=self.model.nv)
-        self.set_state(qpos, qvel)
-        return self._get_obs()
+        return float(self.task.distance(self.sim)[0])

@@ -8,41 +8,91 @@ Inverse kinematics by damped least squares on MuJoCo's Jacobians, then a joint-v
 
 from __future__ import annotations
 
+from typing import Any
+
 import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from grasp_envs.base import ArmEnv
+from grasp_envs.base import ArmEnv, SimArrays, norm
 from grasp_envs.control import grip_down_commands, reach, velocity_servo
 
 
 def reacher2d_policy(env: ArmEnv) -> NDArray[np.float64]:
-    goal = env.data.mocap_pos[0].copy()
-    goal[2] = env.data.site("fingertip").xpos[2]
-    return np.clip(reach(env, "fingertip", goal, np.arange(2)), -1, 1)
+    sim, fingertip = env.sim, int(env.model.site("fingertip").id)
+    goal = sim.mocap_pos[:, 0].copy()
+    goal[:, 2] = sim.site_xpos[:, fingertip, 2]
+    return np.clip(reach(sim, fingertip, goal, np.arange(2)), -1, 1)[0]  # type: ignore[no-any-return]
 
 
 def reacher3d_policy(env: ArmEnv) -> NDArray[np.float64]:
-    return np.clip(reach(env, "palm", env.data.mocap_pos[0].copy(), np.arange(4)), -0.5, 0.5)
+    sim = env.sim
+    return np.clip(reach(sim, int(env.model.site("palm").id), sim.mocap_pos[:, 0].copy(), np.arange(4)), -0.5, 0.5)[0]  # type: ignore[no-any-return]
 
 
 def wall_reacher3d_policy(env: ArmEnv) -> NDArray[np.float64]:
     """Keep the arm straight and horizontal (above the wall) while turning towards the target, then reach."""
-    target = env.data.mocap_pos[0].copy()
-    qpos = env.data.qpos[:4]
+    sim, palm_site = env.sim, int(env.model.site("palm").id)
+    target = sim.mocap_pos[0, 0].copy()
+    qpos = sim.qpos[0, :4]
     azimuth_error = np.angle(np.exp(1j * (np.arctan2(target[1], target[0]) - qpos[1])))
-    palm = env.data.site("palm").xpos
+    palm = sim.site_xpos[0, palm_site]
     arm_up = palm[2] > -0.05
     if arm_up and (np.sign(target[0]) * palm[0] < 0.03 or abs(azimuth_error) > 0.2):
         wrapped = np.angle(np.exp(1j * qpos))
         desired = 6.0 * np.array([-wrapped[0], azimuth_error, -wrapped[2], -wrapped[3]])
-        return np.clip(velocity_servo(env, np.arange(4), np.clip(desired, -6.0, 6.0)), -0.5, 0.5)
-    return np.clip(reach(env, "palm", target, np.arange(4)), -0.5, 0.5)
+        return np.clip(velocity_servo(sim, np.arange(4), np.clip(desired, -6.0, 6.0)[None]), -0.5, 0.5)[0]  # type: ignore[no-any-return]
+    return np.clip(reach(sim, palm_site, target[None], np.arange(4)), -0.5, 0.5)[0]  # type: ignore[no-any-return]
 
 
 GRIP_COMMAND = 0.05  # a gentle squeeze: 5 N m on the claw holds the 14 g cube; full torque squirts it out
 SERVO_GRIP_COMMAND = 0.5  # v1/v2's servo: aim at -0.1 rad, ~0.5 N m on the cube (v2, 20 seeds: 0.3-1.0 all lift 14-17)
 APPROACH_SPEED, LIFT_SPEED = 0.35, 0.25  # m/s of the grip site
+
+
+def grasper3d_actions(
+    task: Any, sim: SimArrays, action_low: NDArray[Any], action_high: NDArray[Any], lift: bool = True,
+    hold_height: float | None = None,
+) -> NDArray[np.float64]:  # fmt: skip
+    """The scripted grasp's actions ``(n, action_dim)`` for ``n`` simulations of a ``Grasper3DTask``: open, align
+    above the cube with the forearm down, descend, close, lift (``grasper3d_policy``)."""
+    model = sim.model
+    cube = task.cube_pos(sim).copy()
+    grip = sim.site_xpos[:, task.grip_site]
+    contacts = task.claw_cube_contacts(sim)
+    holding = (contacts["right"] + contacts["left"] >= 2) & (norm(grip - cube) < 0.03)
+    claw_angle = sim.qpos[:, task.claw_qpos]
+    horizontal = norm((grip - cube)[:, :2])
+    servo = model.actuator_biastype[-1] != mujoco.mjtBias.mjBIAS_NONE  # v1: a force-limited position servo
+    aligned = horizontal < (0.02 if servo else 0.01)  # lifts in 20 seeded episodes: v1 15 (2 cm), v0 14 (1 cm)
+    # finger tips just above the floor: the grip site 1 cm above the cube's centre in v0 (0.145 m along the
+    # forearm), at its centre in v1 (0.155 m)
+    low = cube + np.array([0.0, 0.0, 0.155 - model.site("grip").pos[0]])
+    if not lift:
+        rise: Any = 0.0  # hold it on the floor
+    elif hold_height is None:
+        rise = 0.12
+    else:
+        rise = hold_height - task.cube_height(sim)
+    lifting = holding & (claw_angle > -0.5)
+    closing = ~lifting & aligned & (grip[:, 2] - low[:, 2] < 0.006)  # close around the cube
+    descending = ~lifting & aligned & ~closing  # descend, claw open
+    hover = cube.copy()
+    hover[:, 2] += 0.06  # hover above the cube, open
+    lift_goal = cube.copy()
+    lift_goal[:, 2] += rise
+    goal = np.where(lifting[:, None], lift_goal, np.where((closing | descending)[:, None], low, hover))
+    claw = np.where(lifting | closing, GRIP_COMMAND, -0.5)
+    approach = 15.0 * (goal - grip)
+    max_speed = np.where(claw > 0, LIFT_SPEED, APPROACH_SPEED)
+    approach *= np.minimum(1.0, max_speed / np.maximum(norm(approach), 1e-9))[:, None]
+    if servo:
+        claw = np.where(claw > 0, SERVO_GRIP_COMMAND, -1.0)
+    if task.control == "grip_velocity":  # the action is the grip velocity itself
+        arm = approach / task.max_grip_speed
+    else:
+        arm = grip_down_commands(sim, approach)
+    return np.clip(np.concatenate([arm, claw[:, None]], axis=1), action_low, action_high)  # type: ignore[no-any-return]
 
 
 def grasper3d_policy(env: ArmEnv, lift: bool = True, hold_height: float | None = None) -> NDArray[np.float64]:
@@ -54,42 +104,8 @@ def grasper3d_policy(env: ArmEnv, lift: bool = True, hold_height: float | None =
     the claw turns about it; a cube that cannot turn with the claw is then levered out (Grasper3D-v5, 40 held-out
     resets: lost after lifting 13 times; hold at 0.07: 3); one that can turn with it mostly stays (Grasper3D-v6: 2).
     """
-    data, model = env.data, env.model
-    cube = data.geom("cube").xpos.copy()
-    grip = data.site("grip").xpos
-    contacts = env.claw_cube_contacts()  # type: ignore[attr-defined]
-    holding = contacts["right"] + contacts["left"] >= 2 and np.linalg.norm(grip - cube) < 0.03
-    claw_angle = data.qpos[model.joint("claw_right").qposadr[0]]
-    horizontal = np.linalg.norm((grip - cube)[:2])
-    servo = model.actuator_biastype[-1] != mujoco.mjtBias.mjBIAS_NONE  # v1: a force-limited position servo
-    aligned = horizontal < (0.02 if servo else 0.01)  # lifts in 20 seeded episodes: v1 15 (2 cm), v0 14 (1 cm)
-    # finger tips just above the floor: the grip site 1 cm above the cube's centre in v0 (0.145 m along the
-    # forearm), at its centre in v1 (0.155 m)
-    low = cube + np.array([0.0, 0.0, 0.155 - model.site("grip").pos[0]])
-    if holding and claw_angle > -0.5:
-        if not lift:
-            rise = 0.0  # hold it on the floor
-        elif hold_height is None:
-            rise = 0.12
-        else:
-            rise = hold_height - env.cube_height()  # type: ignore[attr-defined]
-        goal, claw = cube + np.array([0.0, 0.0, rise]), GRIP_COMMAND
-    elif aligned and grip[2] - low[2] < 0.006:
-        goal, claw = low, GRIP_COMMAND  # close around the cube
-    elif aligned:
-        goal, claw = low, -0.5  # descend, claw open
-    else:
-        goal, claw = cube + np.array([0.0, 0.0, 0.06]), -0.5  # hover above the cube, open
-    approach = 15.0 * (goal - grip)
-    max_speed = LIFT_SPEED if claw > 0 else APPROACH_SPEED
-    approach *= min(1.0, max_speed / max(float(np.linalg.norm(approach)), 1e-9))
-    if servo:
-        claw = SERVO_GRIP_COMMAND if claw > 0 else -1.0
-    if getattr(env, "control", "joint_torque") == "grip_velocity":  # the action is the grip velocity itself
-        arm = approach / env.max_grip_speed  # type: ignore[attr-defined]
-    else:
-        arm = grip_down_commands(env, approach)
-    return np.clip(np.concatenate([arm, [claw]]), env.action_space.low, env.action_space.high)
+    space = env.action_space
+    return grasper3d_actions(env.task, env.sim, space.low, space.high, lift, hold_height)[0]
 
 
 SCRIPTED_POLICIES = {

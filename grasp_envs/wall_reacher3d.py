@@ -8,14 +8,88 @@ import numpy as np
 from gymnasium import utils
 from numpy.typing import NDArray
 
-from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D
-from grasp_envs.reacher3d import FLOOR_Z, TARGET_HALF_SIZE, Reacher3DEnv
+from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, SimArrays, norm
+from grasp_envs.reacher3d import FLOOR_Z, TARGET_HALF_SIZE, Reacher3DTask
 
 WALL_CAMERA_CONFIG: dict[str, Any] = {**DEFAULT_CAMERA_CONFIG_3D, "azimuth": 90.0, "elevation": -60.0}
 ARM_GEOMS = ["upper_arm", "forearm"]
 
 
-class WallReacher3DEnv(Reacher3DEnv):
+class WallReacher3DTask(Reacher3DTask):
+    """WallReacher3D's step logic over ``n`` simulations (options: ``WallReacher3DEnv``)."""
+
+    contact_pairs = tuple((geom, "wall") for geom in ARM_GEOMS)
+
+    def __init__(
+        self,
+        xml_file: str = "wall_reacher3d.xml",
+        frame_skip: int = 2,
+        reward_dist_weight: float = 1.0,
+        reward_control_weight: float = 1.0,
+        reward_wall_weight: float = 1.0,
+        reward_proximity_weight: float = 1.0,
+        reset_noise_scale: float = 0.1,
+        success_distance: float = 0.02,
+    ):
+        super().__init__(
+            xml_file, frame_skip, reward_dist_weight, reward_control_weight, 0.0, 0.05, reset_noise_scale,
+            success_distance, observation_dim=21,
+        )  # fmt: skip
+        self.reward_wall_weight = reward_wall_weight
+        self.reward_proximity_weight = reward_proximity_weight
+
+    def setup(self, model: Any, n: int) -> None:
+        super().setup(model, n)
+        self._wall = self.geom_id("wall")
+        self.wall_touched = np.zeros(n, dtype=bool)
+        self.target_side = np.ones(n, dtype=np.int64)
+
+    def wall_contacts(self, sim: SimArrays) -> NDArray[np.int64]:
+        """Contacts between the arm's links and the wall, per simulation."""
+        return self.contact_counts(sim).sum(axis=1).astype(np.int64)  # type: ignore[no-any-return]
+
+    def palm_to_wall_distance(self, sim: SimArrays) -> NDArray[np.float64]:
+        """Euclidean distance from the palm to the wall box (0 inside)."""
+        offset = np.abs(sim.site_xpos[:, self._palm] - sim.geom_xpos[:, self._wall]) - self.model.geom_size[self._wall]
+        return norm(np.maximum(offset, 0.0))
+
+    def reward(self, sim: SimArrays, action: NDArray[np.float64]) -> tuple[NDArray[np.float64], dict[str, Any]]:
+        info = self.reacher_terms(sim, action)
+        contacts = self.wall_contacts(sim)
+        self.wall_touched |= contacts > 0
+        info["wall_contacts"] = contacts
+        info["reward_wall"] = -self.reward_wall_weight * contacts
+        info["reward_proximity"] = -self.reward_proximity_weight * (info["distance"] > self.palm_to_wall_distance(sim))
+        reward = info["reward_dist"] + info["reward_ctrl"] + info["reward_wall"] + info["reward_proximity"]
+        return reward, info
+
+    def success(self, sim: SimArrays) -> NDArray[np.bool_]:
+        return (self.distance(sim) < self.success_distance) & ~self.wall_touched  # type: ignore[no-any-return]
+
+    def observe(self, sim: SimArrays) -> NDArray[np.float64]:
+        side = np.stack([self.target_side < 0, self.target_side > 0], axis=1).astype(np.float64)
+        return np.concatenate([super().observe(sim), side, self.wall_touched[:, None].astype(np.float64)], axis=1)
+
+    def sample_target(self, rng: np.random.Generator) -> NDArray[np.float64]:
+        while True:
+            xy = rng.uniform(-0.1, 0.1, size=2)
+            if np.linalg.norm(xy) <= 0.1 and abs(xy[0]) >= 0.03:
+                return np.array([xy[0], xy[1], FLOOR_Z + TARGET_HALF_SIZE])
+
+    def sample_start(self, rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        mocap_pos = self.default_mocap_pos.copy()
+        mocap_pos[0] = target = self.sample_target(rng)
+        qpos = self.initial_qpos(rng)
+        qpos[1] += np.pi if target[0] > 0 else 0.0  # shoulder yaw: point away from the target
+        qvel = self.init_qvel + rng.uniform(-0.005, 0.005, size=self.model.nv)
+        return qpos, qvel, mocap_pos
+
+    def started(self, sim: SimArrays, ids: NDArray[np.int64]) -> None:
+        self.target_side[ids] = np.where(sim.mocap_pos[ids, 0, 0] > 0, 1, -1)
+        self.wall_touched[ids] = self.wall_contacts(sim)[ids] > 0
+
+
+class WallReacher3DEnv(ArmEnv):
     r"""
     ## Description
     Reacher3D with a wall (box of half-size 0.01 x 0.2 x 0.05 m, top at z = -0.1 m) standing on the floor
@@ -92,7 +166,7 @@ class WallReacher3DEnv(Reacher3DEnv):
       reward after the physics step; cos/sin angles; side one-hot and a wall-touched flag observed.
     """
 
-    _observation_dim = 21
+    task: WallReacher3DTask
 
     def __init__(
         self,
@@ -107,63 +181,20 @@ class WallReacher3DEnv(Reacher3DEnv):
         success_distance: float = 0.02,
         **kwargs: Any,
     ):
+        task = WallReacher3DTask(
+            xml_file, frame_skip, reward_dist_weight, reward_control_weight, reward_wall_weight,
+            reward_proximity_weight, reset_noise_scale, success_distance,
+        )  # fmt: skip
         utils.EzPickle.__init__(
             self, xml_file=xml_file, frame_skip=frame_skip, default_camera_config=default_camera_config,
             reward_dist_weight=reward_dist_weight, reward_control_weight=reward_control_weight,
             reward_wall_weight=reward_wall_weight, reward_proximity_weight=reward_proximity_weight,
             reset_noise_scale=reset_noise_scale, success_distance=success_distance, **kwargs,
         )  # fmt: skip
-        self._init_reacher(reward_dist_weight, reward_control_weight, reset_noise_scale, success_distance)
-        self._reward_wall_weight = reward_wall_weight
-        self._reward_proximity_weight = reward_proximity_weight
-        self._wall_touched = False
-        self._target_side = 1
-        super(Reacher3DEnv, self).__init__(
-            xml_file, frame_skip, default_camera_config, observation_dim=self._observation_dim, **kwargs
-        )
-        self._wall_geom = self.geom_mask(["wall"])
-        self._arm_geoms = self.geom_mask(ARM_GEOMS)
+        ArmEnv.__init__(self, task, default_camera_config, **kwargs)
+
+    def distance(self) -> float:
+        return float(self.task.distance(self.sim)[0])
 
     def wall_contacts(self) -> int:
-        return int(self.touching(self.contact_pairs(), self._arm_geoms, self._wall_geom).sum())
-
-    def palm_to_wall_distance(self) -> float:
-        """Euclidean distance from the palm to the wall box (0 inside)."""
-        wall = self.data.geom("wall")
-        offset = np.abs(self.site_pos("palm") - wall.xpos) - self.model.geom("wall").size
-        return float(np.linalg.norm(np.maximum(offset, 0.0)))
-
-    def _get_rew(self, action: NDArray[np.float64]) -> tuple[float, dict[str, Any]]:
-        info: dict[str, Any] = self._reacher_terms(action)
-        contacts = self.wall_contacts()
-        self._wall_touched = self._wall_touched or contacts > 0
-        info["wall_contacts"] = contacts
-        info["reward_wall"] = -self._reward_wall_weight * contacts
-        info["reward_proximity"] = -self._reward_proximity_weight * float(info["distance"] > self.palm_to_wall_distance())
-        reward = info["reward_dist"] + info["reward_ctrl"] + info["reward_wall"] + info["reward_proximity"]
-        return reward, info
-
-    def _is_success(self) -> bool:
-        return self.distance() < self._success_distance and not self._wall_touched
-
-    def _get_obs(self) -> NDArray[np.float64]:
-        side = np.array([self._target_side < 0, self._target_side > 0], dtype=np.float64)
-        return np.concatenate([super()._get_obs(), side, [float(self._wall_touched)]])
-
-    def _sample_target(self) -> NDArray[np.float64]:
-        while True:
-            xy = self.np_random.uniform(-0.1, 0.1, size=2)
-            if np.linalg.norm(xy) <= 0.1 and abs(xy[0]) >= 0.03:
-                return np.array([xy[0], xy[1], FLOOR_Z + TARGET_HALF_SIZE])
-
-    def reset_model(self) -> NDArray[np.float64]:
-        target = self._sample_target()
-        self._target_side = 1 if target[0] > 0 else -1
-        self._wall_touched = False
-        self.data.mocap_pos[0] = target
-        qpos = self._initial_qpos()
-        qpos[1] += np.pi if self._target_side > 0 else 0.0  # shoulder yaw: point away from the target
-        qvel = self.init_qvel + self.np_random.uniform(-0.005, 0.005, size=self.model.nv)
-        self.set_state(qpos, qvel)
-        self._wall_touched = self.wall_contacts() > 0
-        return self._get_obs()
+        return int(self.task.wall_contacts(self.sim)[0])

@@ -132,7 +132,7 @@ def test_grasper_options_are_checked(kwargs: dict[str, Any], message: str) -> No
 def test_grasper_accepts_a_noise_free_reset() -> None:
     env = grasp_envs.Grasper3DEnv(reset_noise_scale=0)
     env.reset(seed=0)
-    assert env.data.qpos[env._ids["claw_qpos"]] == 0.0
+    assert env.data.qpos[env.task.claw_qpos] == 0.0
 
 
 @pytest.mark.parametrize(

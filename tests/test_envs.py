@@ -65,7 +65,7 @@ def test_pickle_round_trip(env_id: str) -> None:
     a, _ = env.reset(seed=11)
     b, _ = clone.reset(seed=11)
     np.testing.assert_array_equal(a, b)
-    assert clone.unwrapped._reset_noise_scale == 0.05
+    assert clone.unwrapped.task.reset_noise_scale == 0.05
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
@@ -112,7 +112,7 @@ def _observation_rows(doc: str, env: gym.Env) -> list[int]:
     tables = re.split(r"\n\s*\n(?=\s*\|)", section)
     tables = [t for t in tables if re.search(r"^\s*\|\s*Num", t, flags=re.MULTILINE)]
     arm = env.unwrapped
-    table = tables[0] if len(tables) == 1 else tables[["task", "joint"].index(arm._observation)]
+    table = tables[0] if len(tables) == 1 else tables[["task", "joint"].index(arm.task.observation)]
     rows = re.findall(r"^\s*\|\s*(\d+)\s*\|[^\n]*?\|\s*([^|\n]*?)\s*\|\s*$", table, flags=re.MULTILINE)
     numbers = [int(number) for number, _ in rows]
     assert numbers == list(range(len(numbers)))
@@ -120,8 +120,8 @@ def _observation_rows(doc: str, env: gym.Env) -> list[int]:
         return numbers
     present = {
         "always": True,
-        "`observe_claw_torque`": arm._observe_claw_torque,
-        "`cube_rotation`": arm._cube_rotation is not None,
+        "`observe_claw_torque`": arm.task.observe_claw_torque,
+        "`cube_rotation`": arm.task.cube_rotation is not None,
     }
     kept = [present[when] for _, when in rows]
     return list(range(sum(kept)))
@@ -136,7 +136,7 @@ def test_docstring_tables_match_spaces(env_id: str) -> None:
     dimension = env.observation_space.shape[0]
     assert f"(-inf, inf, ({dimension},), float64)" in obs_section or "(-inf, inf, (N,), float64)" in obs_section
     if "(N,)" in obs_section:
-        assert f"N = {dimension}" in obs_section or env.unwrapped._observation == "joint" or env_id != "Grasper3D-v7"
+        assert f"N = {dimension}" in obs_section or env.unwrapped.task.observation == "joint" or env_id != "Grasper3D-v7"
     low, high = env.action_space.low, env.action_space.high
     action_section = doc.split("## Action Space")[1].split("## Observation Space")[0]
     if np.all(low == low[0]) and np.all(high == high[0]):
@@ -242,7 +242,7 @@ def test_grasper_thesis_mode_terminates_on_lift() -> None:
 def test_wall_contact_spoils_success() -> None:
     env = gym.make("WallReacher3D-v0").unwrapped
     env.reset(seed=0)
-    env._wall_touched = True
+    env.task.wall_touched[:] = True
     env.data.mocap_pos[0] = env.data.site("palm").xpos.copy()
     _, _, _, _, info = env.step(np.zeros(4))
     assert info["distance"] < 0.02 and not info["is_success"]
@@ -360,10 +360,10 @@ def test_grasper_v2_claw_rate_moves_the_servo_target() -> None:
     claw = env.model.joint("claw_right").qposadr[0]
     for _ in range(10):  # the target runs to its open end, -0.7 rad (the joint's limit is -40 deg)
         env.step(np.array([0.0, 0.0, 0.0, -1.0]))
-    assert env._claw_target == pytest.approx(-0.7)
+    assert env.task.claw_target[0] == pytest.approx(-0.7)
     for _ in range(3):
         env.step(np.array([0.0, 0.0, 0.0, 1.0]))
-    assert env._claw_target == pytest.approx(-0.4)
+    assert env.task.claw_target[0] == pytest.approx(-0.4)
     for _ in range(20):  # c = 0 holds the target; the servo settles there
         env.step(np.array([0.0, 0.0, 0.0, 0.0]))
     assert env.data.qpos[claw] == pytest.approx(-0.4, abs=0.02)
@@ -387,7 +387,7 @@ def test_grasper_v3_is_v2_plus_a_squeeze_term() -> None:
         np.testing.assert_array_equal(obs3[:31], obs2)
         torque = v3.unwrapped.data.actuator_force[v3.unwrapped.model.actuator("claw").id]
         assert obs3[31] == torque
-        grasped = v3.unwrapped._is_grasped(v3.unwrapped._contacts)
+        grasped = v3.unwrapped.is_grasped()
         assert info3["reward_squeeze"] == pytest.approx(2.0 * grasped * min(max(torque, 0.0) / 0.5, 1.0))
         assert reward3 == pytest.approx(reward2 + info3["reward_squeeze"])
         squeezed += info3["reward_squeeze"] > 0
@@ -401,7 +401,7 @@ def test_grasper_v3_is_v2_plus_a_squeeze_term() -> None:
                 v3.reset(seed=seed)
                 for _ in range(100):
                     *_, info = v3.step(scripted.grasper3d_policy(v3.unwrapped))
-                    if v3.unwrapped._is_grasped(v3.unwrapped._contacts):
+                    if v3.unwrapped.is_grasped():
                         paid.append(info["reward_squeeze"])
         return float(np.mean(paid))
 
@@ -421,7 +421,7 @@ def test_grasper_scripted_starts() -> None:
         first, _ = always.reset(seed=seed)
         np.testing.assert_array_equal(first, always.reset(seed=seed)[0])
         assert np.all(np.isfinite(first))
-        started_grasped += always.unwrapped._is_grasped(always.unwrapped._contacts)
+        started_grasped += always.unwrapped.is_grasped()
     # measured: 4 of 16 (from v3's stretched start pose the scripted grasp has both halves on the cube after 52-87
     # steps, in 17 of the episodes of seeds 0-19)
     assert started_grasped >= 2
@@ -441,9 +441,9 @@ def test_grasper_scripted_start_steps_choose_the_phase() -> None:
     grasped = {"default": 0, "late": 0}
     for seed in range(24):
         np.testing.assert_array_equal(default.reset(seed=seed)[0], explicit.reset(seed=seed)[0])
-        grasped["default"] += default.unwrapped._is_grasped(default.unwrapped._contacts)
+        grasped["default"] += default.unwrapped.is_grasped()
         late.reset(seed=seed)
-        grasped["late"] += late.unwrapped._is_grasped(late.unwrapped._contacts)
+        grasped["late"] += late.unwrapped.is_grasped()
     assert grasped["late"] >= 2 * grasped["default"] + 4, grasped
     # a one-step range is that many scripted steps: the same state as stepping the scripted grasp by hand
     one = ScriptedStarts(gym.make("Grasper3D-v4"), probability=1.0, steps=(30, 31))
@@ -496,9 +496,9 @@ def test_grasper_v4_grip_priority_moves_the_grip_as_commanded() -> None:
         action = grasper3d_policy(env)
         if step >= 76:
             command = env.max_grip_speed * action[:3]
-            jacobian = site_jacobian(env, "grip", np.arange(5))
+            jacobian = site_jacobian(env.sim, env.task.grip_site, np.arange(5))[0]
             for priority in residuals:
-                residual = jacobian @ grip_down_velocity(env, command, priority) - command
+                residual = jacobian @ grip_down_velocity(env.sim, command[None], priority)[0] - command
                 residuals[priority].append(float(np.linalg.norm(residual)))
         env.step(action)
     assert np.mean(residuals[True]) < 0.03 and np.mean(residuals[False]) > 0.07, residuals
@@ -544,7 +544,7 @@ def test_grasper_v4_between_test_is_per_forearm_axis(
         forearm = env.data.body("forearm").xmat.reshape(3, 3)
         middle = (env.site_pos("claw_right") + env.site_pos("claw_left")) / 2
         target = middle + forearm @ np.array([along_forearm, 0.0, along_hinge])
-        env.data.qpos[env._cube_qpos] += target - env.cube_pos()
+        env.data.qpos[env.task.cube_qpos] += target - env.cube_pos()
         mujoco.mj_kinematics(env.model, env.data)
         np.testing.assert_allclose(env.cube_pos(), target, atol=1e-12)
         results[env_id] = env.cube_between_claws()
