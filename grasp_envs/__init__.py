@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import multiprocessing
 import multiprocessing.forkserver
+from typing import TYPE_CHECKING, Any
 
 from grasp_envs.grasper3d import Grasper3DEnv
 from grasp_envs.reacher2d import Reacher2DEnv
@@ -22,14 +23,29 @@ __all__ = [
     "ENV_IDS",
     "PRESETS",
     "RECOMMENDED_GRASPER",
+    "BatchVecEnv",
     "Grasper3DEnv",
     "Reacher2DEnv",
     "Reacher3DEnv",
     "ScriptedStarts",
     "WallReacher3DEnv",
+    "make_batch_env",
 ]
 
 register_presets()
+
+if TYPE_CHECKING:
+    from grasp_envs.batch import BatchVecEnv, make_batch_env
+else:
+
+    def __getattr__(name: str) -> Any:
+        # the batched engine is an SB3 VecEnv: imported on first use, so that making a Gymnasium env never imports
+        # stable_baselines3 and torch
+        if name in ("BatchVecEnv", "make_batch_env"):
+            from grasp_envs import batch
+
+            return getattr(batch, name)
+        raise AttributeError(f"module 'grasp_envs' has no attribute {name!r}")
 
 
 def _preload_in_forkserver() -> None:

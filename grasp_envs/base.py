@@ -39,7 +39,7 @@ INSTABILITY_WARNINGS = np.array(
 # MjData fields the tasks read, each as an (n, ...) array
 SIM_FIELDS = (
     "qpos", "qvel", "ctrl", "mocap_pos", "xpos", "xmat", "site_xpos", "geom_xpos", "geom_xmat", "actuator_force",
-    "qfrc_bias", "sensordata", "cdof", "subtree_com",
+    "qfrc_bias", "cdof", "subtree_com",
 )  # fmt: skip
 
 Array = NDArray[np.float64]
@@ -63,7 +63,6 @@ class SimArrays:
     geom_xmat: Array
     actuator_force: Array
     qfrc_bias: Array
-    sensordata: Array
     cdof: Array
     subtree_com: Array
 
@@ -73,9 +72,11 @@ class SimArrays:
         arrays: dict[str, Array],
         warnings: NDArray[np.int32],
         data: mujoco.MjData | None = None,
+        contacts: Array | None = None,
     ):
         self.model = model
         self.data = data
+        self.contacts = contacts
         self.n = len(arrays["qpos"])
         for name in SIM_FIELDS:
             setattr(self, name, arrays[name])
@@ -84,6 +85,12 @@ class SimArrays:
     @classmethod
     def of_data(cls, model: mujoco.MjModel, data: mujoco.MjData) -> SimArrays:
         return cls(model, {name: getattr(data, name)[None] for name in SIM_FIELDS}, data.warning.number[None], data)
+
+    def take(self, ids: NDArray[np.int64]) -> SimArrays:
+        """A copy of the simulations ``ids``' arrays (a smaller batch, for computing on a subset)."""
+        arrays = {name: getattr(self, name)[ids] for name in SIM_FIELDS}
+        contacts = None if self.contacts is None else self.contacts[ids]
+        return SimArrays(self.model, arrays, self._warnings[ids], contacts=contacts)
 
     def instability_warnings(self) -> NDArray[np.int64]:
         """Per simulation, how many times MuJoCo has reset a diverging state (bad qpos, qvel, qacc or ctrl)."""
@@ -141,15 +148,9 @@ class ArmTask:
 
     # ------------------------------------------------------------------ the model
     def build_model(self) -> mujoco.MjModel:
-        """The task's model: its XML, edited by ``edit_spec``, with one contact sensor per ``contact_pairs`` entry."""
+        """The task's model: its XML, edited by ``edit_spec``."""
         spec = mujoco.MjSpec.from_file(asset_path(self.xml_file))
         self.edit_spec(spec)
-        for first, second in self.contact_pairs:
-            spec.add_sensor(
-                name=f"contacts:{first}:{second}", type=mujoco.mjtSensor.mjSENS_CONTACT,
-                objtype=mujoco.mjtObj.mjOBJ_GEOM, objname=first, reftype=mujoco.mjtObj.mjOBJ_GEOM, refname=second,
-                intprm=[1, 0, 1],  # report "found": the number of contacts between the two geoms
-            )  # fmt: skip
         return spec.compile()
 
     def edit_spec(self, spec: mujoco.MjSpec) -> None:
@@ -167,9 +168,6 @@ class ArmTask:
         self._contact_geoms = np.array(
             [(model.geom(a).id, model.geom(b).id) for a, b in self.contact_pairs], dtype=np.int64
         ).reshape(-1, 2)
-        self._contact_rows = np.array(
-            [model.sensor_adr[model.sensor(f"contacts:{a}:{b}").id] for a, b in self.contact_pairs], dtype=np.int64
-        )
 
     def action_space(self, model: mujoco.MjModel) -> Box:
         """The actuators' control ranges, as Gymnasium's ``MujocoEnv`` makes them."""
@@ -182,25 +180,26 @@ class ArmTask:
     def site_id(self, name: str) -> int:
         return int(self.model.site(name).id)
 
-    def contact_counts(self, sim: SimArrays) -> NDArray[np.float64]:
-        """Contacts between each ``contact_pairs`` pair, ``(n, len(contact_pairs))``, those of the last collision
-        detection (``MjData.contact`` after ``mj_step`` or ``mj_forward``).
-
-        One ``MjData`` is read from its contact list; a batch from the task's contact sensors, which the batch
-        engine makes current with a position-stage forward after each step (a contact sensor reports the contacts
-        found before its own stage's collision detection; tested equal to the contact list).
-        """
-        if sim.data is None:
-            return sim.sensordata[:, self._contact_rows]
-        geoms = sim.data.contact.geom[: sim.data.ncon]
+    def count_contacts(self, data: mujoco.MjData) -> NDArray[np.float64]:
+        """Contacts between each ``contact_pairs`` pair in ``data``'s contact list, ``(len(contact_pairs),)``."""
+        geoms = data.contact.geom[: data.ncon]
         first, second = geoms[:, :1], geoms[:, 1:]
         pair_first, pair_second = self._contact_geoms[:, 0], self._contact_geoms[:, 1]
         match = ((first == pair_first) & (second == pair_second)) | ((first == pair_second) & (second == pair_first))
-        return match.sum(axis=0, dtype=np.float64)[None]
+        return match.sum(axis=0, dtype=np.float64)  # type: ignore[no-any-return]
+
+    def contact_counts(self, sim: SimArrays) -> NDArray[np.float64]:
+        """Contacts between each ``contact_pairs`` pair, ``(n, len(contact_pairs))``: those of the last collision
+        detection (``MjData.contact`` after ``mj_step`` or ``mj_forward``; a batch keeps them in ``sim.contacts``)."""
+        if sim.data is not None:
+            return self.count_contacts(sim.data)[None]
+        assert sim.contacts is not None
+        return sim.contacts
 
     # ------------------------------------------------------------------ the step
-    def controls(self, sim: SimArrays, action: Array) -> Array:
-        """The actuator controls ``(n, nu)`` of the (checked, clipped) actions ``(n, action_dim)``."""
+    def controls(self, sim: SimArrays, action: Array, ids: NDArray[np.int64] | None = None) -> Array:
+        """The actuator controls ``(n, nu)`` of the (checked, clipped) actions ``(n, action_dim)``; ``ids``: the rows
+        of the task state that ``sim`` holds, when it holds a subset (``SimArrays.take``)."""
         return action
 
     def transition(

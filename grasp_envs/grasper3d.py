@@ -293,14 +293,16 @@ class Grasper3DTask(ArmTask):
         return (self.cube_height(sim) >= self.lift_height) & self.is_grasped(self.contacts)  # type: ignore[no-any-return]
 
     # ------------------------------------------------------------------ stepping
-    def controls(self, sim: SimArrays, action: Array) -> Array:
+    def controls(self, sim: SimArrays, action: Array, ids: NDArray[np.int64] | None = None) -> Array:
         if self.control == "joint_torque":
             return action
         arm = grip_down_commands(sim, self.max_grip_speed * action[:, :3], self.grip_priority)
         claw = action[:, 3]
         if self.claw_rate is not None:  # the action moves the servo's target angle; ctrl aims the servo there
-            self.claw_target = np.clip(self.claw_target + self.claw_rate * claw, *CLAW_TARGET_RANGE)
-            claw = (self.claw_target - CLAW_OPEN_TARGET) / CLAW_SERVO_SLOPE
+            rows = slice(None) if ids is None else ids
+            target = np.clip(self.claw_target[rows] + self.claw_rate * claw, *CLAW_TARGET_RANGE)
+            self.claw_target[rows] = target
+            claw = (target - CLAW_OPEN_TARGET) / CLAW_SERVO_SLOPE
         return np.clip(np.concatenate([arm, claw[:, None]], axis=1), self.ctrl_low, self.ctrl_high)  # type: ignore[no-any-return]
 
     # ------------------------------------------------------------------ reward
@@ -659,6 +661,7 @@ class Grasper3DEnv(ArmEnv):
     """
 
     task: Grasper3DTask
+    task_class = Grasper3DTask
 
     def __init__(
         self,

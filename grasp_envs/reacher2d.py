@@ -144,6 +144,7 @@ class Reacher2DEnv(ArmEnv):
     """
 
     task: Reacher2DTask
+    task_class = Reacher2DTask
 
     def __init__(
         self,

@@ -171,6 +171,7 @@ class Reacher3DEnv(ArmEnv):
     """
 
     task: Reacher3DTask
+    task_class = Reacher3DTask
 
     def __init__(
         self,

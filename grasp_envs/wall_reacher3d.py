@@ -167,6 +167,7 @@ class WallReacher3DEnv(ArmEnv):
     """
 
     task: WallReacher3DTask
+    task_class = WallReacher3DTask
 
     def __init__(
         self,

@@ -100,6 +100,17 @@ class ScriptedStarts(
                     f"outside ScriptedStarts"
                 )
             inner = inner.env
+        checked = self.check_arguments(probability, steps, hold_height)
+        self.probability, self.steps, self.hold_height = checked["probability"], checked["steps"], checked["hold_height"]
+        gym.utils.RecordConstructorArgs.__init__(
+            self, probability=self.probability, steps=self.steps, hold_height=self.hold_height
+        )
+
+    @staticmethod
+    def check_arguments(
+        probability: float = 0.25, steps: Sequence[int] = (0, 100), hold_height: float | None = None
+    ) -> dict[str, Any]:
+        """The arguments checked and normalised (``ValueError`` naming a bad one); the batched engine runs them too."""
         if isinstance(probability, bool) or not isinstance(probability, int | float) or not 0.0 <= probability <= 1.0:
             raise ValueError(f"ScriptedStarts probability must be a number in [0, 1], got {probability!r}")
         bounds = tuple(steps) if isinstance(steps, tuple | list) else ()
@@ -111,12 +122,7 @@ class ScriptedStarts(
             raise ValueError(f"ScriptedStarts steps must be (low, high) integers with 0 <= low < high, got {steps!r}")
         if hold_height is not None and (isinstance(hold_height, bool) or not hold_height > 0):
             raise ValueError(f"ScriptedStarts hold_height must be None or a positive height (m), got {hold_height!r}")
-        self.probability = float(probability)
-        self.steps = (int(bounds[0]), int(bounds[1]))
-        self.hold_height = hold_height
-        gym.utils.RecordConstructorArgs.__init__(
-            self, probability=self.probability, steps=self.steps, hold_height=self.hold_height
-        )
+        return {"probability": float(probability), "steps": (int(bounds[0]), int(bounds[1])), "hold_height": hold_height}
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None

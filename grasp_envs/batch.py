@@ -1,0 +1,363 @@
+"""The batched simulation engine: every registered task as one SB3 ``VecEnv`` over ``mujoco.batch.Batch``.
+
+``make_batch_env("Grasper3D-v7", n_envs=64, seed=0, n_threads=2)`` steps 64 simulations of the task's model on a
+thread pool (MuJoCo's GIL-free batch, bit-identical to a loop of ``mj_step``) and computes actions' controls,
+observations, rewards, success, termination and resets for all of them at once, with the task's one batch-first
+definition (``grasp_envs.base.ArmTask``) that the Gymnasium env runs as a batch of one. Its transitions equal SB3's
+``DummyVecEnv`` over ``gymnasium.make(env_id)`` with the same seeds and actions (tested to 1e-9 for every id).
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import mujoco.batch
+import numpy as np
+from gymnasium.envs.registration import load_env_creator
+from gymnasium.spaces import Box
+from gymnasium.utils import seeding
+from numpy.typing import NDArray
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
+
+from grasp_envs.base import SIM_FIELDS, ArmEnv, ArmTask, SimArrays, info_of
+
+# MjData fields that are state (bound as live views); the others are derived, refreshed by each batch call
+_STATE_FIELDS = ("qpos", "qvel", "ctrl", "mocap_pos")
+# Gymnasium MujocoEnv arguments that only concern rendering
+_RENDER_ARGUMENTS = ("render_mode", "width", "height", "camera_id", "camera_name", "max_geom", "visual_options")
+
+
+def _check_count(name: str, value: Any, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+class BatchVecEnv(VecEnv):
+    """``n_envs`` simulations of one registered arm task, stepped together (an SB3 ``VecEnv``).
+
+    Episodes end as with ``gymnasium.make(env_id)`` (the task's termination, and truncation after the id's
+    ``max_episode_steps``), and the env resets itself as SB3's vectorised envs do: the step's info holds
+    ``terminal_observation`` and ``TimeLimit.truncated``, the returned observation is the next episode's first, and
+    ``reset_infos`` the reset's info. Seeding follows SB3: ``seed(s)`` makes env ``i``'s next reset use seed
+    ``s + i`` (its own generator, as ``gymnasium.make(env_id).reset(seed=s + i)``).
+
+    ``scripted_starts``: ``grasp_envs.wrappers.ScriptedStarts``' arguments (``probability``, ``steps``,
+    ``hold_height``), run batched on the Grasper: a training aid, never for evaluation envs.
+
+    :param env_id: a registered id of ``grasp_envs`` (``grasp_envs.ENV_IDS``)
+    :param n_envs: number of simulations
+    :param n_threads: threads stepping the physics (``mujoco.batch``); 0 uses every CPU
+    :param scripted_starts: ``None``, or ``ScriptedStarts``' keyword arguments
+    :param options: the id's options to override (the task's keyword arguments), and Gymnasium's rendering
+        arguments (``render_mode``, ``width``, ``height``, ``camera_id``, ``camera_name``, ``default_camera_config``)
+    """
+
+    def __init__(
+        self,
+        env_id: str,
+        n_envs: int,
+        n_threads: int = 1,
+        scripted_starts: dict[str, Any] | None = None,
+        **options: Any,
+    ):
+        n_envs = _check_count("n_envs", n_envs, 1)
+        n_threads = _check_count("n_threads", n_threads, 0)
+        spec = gym.spec(env_id)
+        env_class = load_env_creator(spec.entry_point) if isinstance(spec.entry_point, str) else spec.entry_point
+        if not (isinstance(env_class, type) and issubclass(env_class, ArmEnv)):
+            raise ValueError(f"make_batch_env runs the tasks of grasp_envs (grasp_envs.ENV_IDS), got {env_id!r}")
+        kwargs = {**spec.kwargs, **options}
+        task_arguments = set(inspect.signature(env_class.task_class).parameters)
+        env_arguments = set(inspect.signature(env_class).parameters) | set(_RENDER_ARGUMENTS)
+        unknown = sorted(set(kwargs) - task_arguments - env_arguments)
+        if unknown:
+            raise TypeError(f"{env_id} has no option {', '.join(map(repr, unknown))}")
+        self.env_id = env_id
+        self.spec = spec
+        self.task: ArmTask = env_class.task_class(**{k: v for k, v in kwargs.items() if k in task_arguments})
+        self._render_kwargs = {k: v for k, v in kwargs.items() if k not in task_arguments}
+        self.render_mode: str | None = self._render_kwargs.get("render_mode")
+        self.max_episode_steps = spec.max_episode_steps
+        model = self.task.build_model()
+        self.model = model
+        self.batch = mujoco.batch.Batch(model, n_envs, n_threads, persistent=True)
+        self.task.setup(model, n_envs)
+        self._state = {name: self.batch.bind(name) for name in _STATE_FIELDS}
+        self._derived = {name: self.batch.bind(name) for name in SIM_FIELDS if name not in _STATE_FIELDS}
+        # the derived fields as MjData shows them after mj_step (kept: the batch's own are refreshed by every call)
+        self._snapshot = {name: array.copy() for name, array in self._derived.items()}
+        self._contacts = np.zeros((n_envs, len(self.task.contact_pairs)))
+        self._contact_data = mujoco.MjData(model)
+        arrays = {**self._state, **self._snapshot}
+        self.sim = SimArrays(model, arrays, self.batch.warning[..., 1], contacts=self._contacts)
+        self._scripted = self._check_scripted_starts(scripted_starts)
+        observation_space = Box(low=-np.inf, high=np.inf, shape=(self.task.observation_dim,), dtype=np.float64)
+        super().__init__(n_envs, observation_space, self.task.action_space(model))
+        self._rngs: list[np.random.Generator | None] = [None] * n_envs
+        self._episode_steps = np.zeros(n_envs, dtype=np.int64)
+        self._observations = np.zeros((n_envs, self.task.observation_dim))
+        self._actions: NDArray[np.float64] | None = None
+        self._renderer: Any = None
+        self._render_data: mujoco.MjData | None = None
+
+    # ------------------------------------------------------------------ physics
+    def _copy_derived(self, ids: NDArray[np.int64] | None) -> None:
+        """Keep the derived fields and the contacts of ``ids`` (all: ``None``) as MjData shows them now."""
+        for name, array in self._derived.items():
+            if ids is None:
+                np.copyto(self._snapshot[name], array)
+            else:
+                self._snapshot[name][ids] = array[ids]
+        if self.task.contact_pairs:  # the contact list has no batched binding: read each simulation's MjData
+            for i in range(self.num_envs) if ids is None else ids:
+                self.batch.get_data(int(i), self._contact_data)
+                self._contacts[i] = self.task.count_contacts(self._contact_data)
+
+    def _physics_step(self, ids: NDArray[np.int64] | None, ctrl: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Step ``ids`` (all: ``None``) with ``ctrl``; reset and report those that became unstable."""
+        rows = slice(None) if ids is None else ids
+        before = self.sim.instability_warnings()[rows].copy()
+        self._state["ctrl"][rows] = ctrl
+        self.batch.step(ids, nstep=self.task.frame_skip)
+        unstable = (self.sim.instability_warnings()[rows] > before) | ~np.isfinite(self._state["qvel"][rows]).all(axis=1)
+        where = (np.arange(self.num_envs) if ids is None else ids)[unstable]
+        if len(where):  # put the physics back into a valid state, as the Gymnasium env does
+            self.batch.reset(where)
+        self._copy_derived(ids)
+        return unstable  # type: ignore[no-any-return]
+
+    def _start(self, ids: NDArray[np.int64]) -> None:
+        """Draw and write the start states of ``ids``, each with its own generator."""
+        starts = [self.task.sample_start(self._rng(i)) for i in ids]
+        self.batch.reset(ids, stage=mujoco.mjtStage.mjSTAGE_NONE)
+        for i, (qpos, qvel, mocap_pos) in zip(ids, starts, strict=True):
+            self._state["qpos"][i] = qpos
+            self._state["qvel"][i] = qvel
+            if mocap_pos is not None:
+                self._state["mocap_pos"][i] = mocap_pos
+        self.batch.forward(ids)
+        self._copy_derived(ids)
+        self.task.started(self.sim, ids)
+
+    def _rng(self, i: int) -> np.random.Generator:
+        if self._rngs[i] is None:
+            self._rngs[i], _ = seeding.np_random(None)
+        return self._rngs[i]  # type: ignore[return-value]
+
+    def _reset_envs(self, ids: NDArray[np.int64]) -> tuple[NDArray[np.float64], list[dict[str, Any]]]:
+        self._start(ids)
+        if self._scripted is not None:
+            self._scripted_starts(ids)
+        self._episode_steps[ids] = 0
+        observation = self.task.observe(self.sim)
+        info = self.task.reset_info(self.sim)
+        return observation[ids], [info_of(info, int(i)) for i in ids]
+
+    # ------------------------------------------------------------------ scripted starts (a training aid)
+    def _check_scripted_starts(self, arguments: dict[str, Any] | None) -> dict[str, Any] | None:
+        if arguments is None:
+            return None
+        from grasp_envs.grasper3d import Grasper3DTask
+        from grasp_envs.wrappers import ScriptedStarts
+
+        if not isinstance(self.task, Grasper3DTask):
+            raise TypeError(f"scripted_starts runs the Grasper's scripted grasp, {self.env_id} is another task")
+        unknown = set(arguments) - {"probability", "steps", "hold_height"}
+        if unknown:
+            raise TypeError(f"scripted_starts has no argument {', '.join(map(repr, sorted(unknown)))}")
+        checked = ScriptedStarts.check_arguments(**arguments)
+        return checked if checked["probability"] > 0 else None
+
+    def _scripted_starts(self, ids: NDArray[np.int64]) -> None:
+        """``ScriptedStarts`` for the just-reset ``ids``: the same draws from each env's generator, the scripted
+        grasp stepped for the chosen envs together, a fresh start where a scripted step turned unstable."""
+        from grasp_envs.scripted import grasper3d_actions
+
+        assert self._scripted is not None
+        probability, (low, high), hold_height = (self._scripted[k] for k in ("probability", "steps", "hold_height"))
+        remaining = np.zeros(self.num_envs, dtype=np.int64)
+        for i in ids:
+            rng = self._rng(int(i))
+            if rng.uniform() < probability:
+                remaining[i] = rng.integers(low, high)
+        space = self.action_space
+        while (active := np.flatnonzero(remaining > 0)).size:
+            sub = self.sim.take(active)
+            actions = grasper3d_actions(self.task, sub, space.low, space.high, hold_height=hold_height)
+            actions = np.clip(actions.astype(np.float64), space.low, space.high)
+            unstable = self._physics_step(active, self.task.controls(sub, actions, active))
+            remaining[active] -= 1
+            if unstable.any():  # start from a fresh draw of the task's start state instead, no scripted steps after
+                fresh = active[unstable]
+                remaining[fresh] = 0
+                self._start(fresh)
+
+    # ------------------------------------------------------------------ VecEnv
+    def reset(self) -> VecEnvObs:
+        if any(self._options):
+            raise ValueError(f"{type(self).__name__}.reset takes no options (the tasks have none), got {self._options}")
+        for i, seed in enumerate(self._seeds):
+            if seed is not None:
+                self._rngs[i], _ = seeding.np_random(seed)
+        observations, infos = self._reset_envs(np.arange(self.num_envs))
+        self._observations[:] = observations
+        self.reset_infos = infos
+        self._reset_seeds()
+        self._reset_options()
+        return self._observations.copy()
+
+    def step_async(self, actions: NDArray[Any]) -> None:
+        self._actions = actions
+
+    def _checked_actions(self, actions: Any) -> NDArray[np.float64]:
+        actions = np.asarray(actions, dtype=np.float64)
+        if actions.shape != (self.num_envs, *self.action_space.shape):
+            raise ValueError(
+                f"{type(self).__name__}.step expects actions of shape {(self.num_envs, *self.action_space.shape)}, "
+                f"got {actions.shape}"
+            )
+        finite = np.isfinite(actions).all(axis=1)
+        if not finite.all():
+            i = int(np.flatnonzero(~finite)[0])
+            raise ValueError(f"{type(self).__name__}.step got a non-finite action for env {i}: {actions[i]}")
+        return np.clip(actions, self.action_space.low, self.action_space.high)  # type: ignore[no-any-return]
+
+    def step_wait(self) -> VecEnvStepReturn:
+        if self._actions is None:
+            raise RuntimeError("step_wait called without step_async")
+        actions = self._checked_actions(self._actions)
+        self._actions = None
+        unstable = self._physics_step(None, self.task.controls(self.sim, actions))
+        observation, reward, terminated, info = self.task.transition(self.sim, actions, unstable)
+        self._episode_steps += 1
+        limit = self.max_episode_steps
+        truncated = self._episode_steps >= limit if limit is not None else np.zeros(self.num_envs, dtype=bool)
+        done = terminated | truncated
+        infos = [info_of(info, i) for i in range(self.num_envs)]
+        for i, env_info in enumerate(infos):  # as SB3's DummyVecEnv: on every step
+            env_info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+        for i in np.flatnonzero(done):
+            infos[i]["terminal_observation"] = observation[i].copy()
+        if done.any():
+            ids = np.flatnonzero(done)
+            observation[ids], reset_infos = self._reset_envs(ids)
+            for i, reset_info in zip(ids, reset_infos, strict=True):
+                self.reset_infos[i] = reset_info
+        self._observations[:] = observation
+        return self._observations.copy(), reward.astype(np.float32), done, infos
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def get_images(self) -> Sequence[NDArray[np.uint8] | None]:
+        if self.render_mode != "rgb_array":
+            raise ValueError(f"rendering images needs render_mode='rgb_array', this env has {self.render_mode!r}")
+        return [self.render_env(i) for i in range(self.num_envs)]
+
+    def render_env(self, i: int) -> NDArray[np.uint8]:
+        """An ``rgb_array`` image of simulation ``i``, as ``gymnasium.make(env_id, render_mode="rgb_array")`` renders."""
+        from gymnasium.envs.mujoco.mujoco_rendering import MujocoRenderer
+
+        if self._renderer is None:
+            model = self.model
+            width, height = self._render_kwargs.get("width", 480), self._render_kwargs.get("height", 480)
+            model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
+            model.vis.global_.offheight = max(model.vis.global_.offheight, height)
+            self._render_data = mujoco.MjData(model)
+            self._renderer = MujocoRenderer(
+                model, self._render_data, self._render_kwargs.get("default_camera_config"), width, height,
+                self._render_kwargs.get("max_geom", 1000), self._render_kwargs.get("camera_id"),
+                self._render_kwargs.get("camera_name"), self._render_kwargs.get("visual_options", {}),
+            )  # fmt: skip
+        self.batch.get_data(i, self._render_data)
+        mujoco.mj_forward(self.model, self._render_data)
+        return self._renderer.render("rgb_array")  # type: ignore[no-any-return]
+
+    def _indices(self, indices: VecEnvIndices) -> list[int]:
+        return list(self._get_indices(indices))
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        """The task's attribute (``self.task``), per env: a per-simulation array gives env ``i`` its row."""
+        target = self.task if hasattr(self.task, attr_name) else self
+        if not hasattr(target, attr_name):
+            raise AttributeError(f"{self.env_id} has no attribute {attr_name!r}")
+        value = getattr(target, attr_name)
+        per_env = isinstance(value, np.ndarray) and target is self.task and value.shape[:1] == (self.num_envs,)
+        return [value[i] if per_env else value for i in self._indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        """Set a task attribute: a per-simulation array's rows for ``indices``, any other for all envs at once."""
+        current = getattr(self.task, attr_name, None)
+        rows = self._indices(indices)
+        if isinstance(current, np.ndarray) and current.shape[:1] == (self.num_envs,):
+            current[rows] = value
+        elif sorted(rows) == list(range(self.num_envs)):
+            setattr(self.task, attr_name, value)
+        else:
+            raise ValueError(
+                f"{attr_name!r} is an option of all {self.num_envs} simulations of the batch: set it for all envs"
+            )
+
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
+    ) -> list[Any]:
+        """Call a method of the task over the batch (``task.method(sim, *args)``), and give env ``i`` its row."""
+        method = getattr(self.task, method_name, None)
+        if not callable(method):
+            raise AttributeError(f"{type(self.task).__name__} has no method {method_name!r}")
+        result = method(self.sim, *method_args, **method_kwargs)
+        return [result[i] for i in self._indices(indices)]
+
+    def env_is_wrapped(
+        self, wrapper_class: type[gym.Wrapper[Any, Any, Any, Any]], indices: VecEnvIndices = None
+    ) -> list[bool]:
+        from grasp_envs.wrappers import ScriptedStarts
+
+        wrapped = self._scripted is not None and issubclass(ScriptedStarts, wrapper_class)
+        return [wrapped for _ in self._indices(indices)]
+
+
+def make_batch_env(
+    env_id: str,
+    n_envs: int = 1,
+    seed: int | None = None,
+    n_threads: int = 1,
+    wrapper_class: Any = None,
+    wrapper_kwargs: dict[str, Any] | None = None,
+    monitor: bool = True,
+    info_keywords: Iterable[str] = ("is_success",),
+    **options: Any,
+) -> VecEnv:
+    """``n_envs`` simulations of ``env_id`` in one batched SB3 ``VecEnv`` (``BatchVecEnv``), as SB3's
+    ``make_vec_env`` would make them: seeded with ``seed`` (env ``i``: ``seed + i``) and, with ``monitor``, wrapped in
+    ``VecMonitor`` (episode returns, lengths and ``info_keywords``, what ``Monitor`` records for ``make_vec_env``).
+
+    ``wrapper_class``: ``None`` or ``grasp_envs.wrappers.ScriptedStarts`` (run batched, with ``wrapper_kwargs``);
+    the batch has no per-env Gymnasium envs to wrap, so any other wrapper is refused.
+    """
+    from grasp_envs.wrappers import ScriptedStarts
+
+    scripted = None
+    if wrapper_class is not None:
+        if wrapper_class is not ScriptedStarts:
+            raise TypeError(
+                f"the batched engine runs no per-env Gymnasium wrappers; {getattr(wrapper_class, '__name__', wrapper_class)}"
+                " cannot wrap it (ScriptedStarts is built in; wrap the VecEnv with VecEnv wrappers instead)"
+            )
+        scripted = dict(wrapper_kwargs or {})
+    elif wrapper_kwargs:
+        raise TypeError("wrapper_kwargs given without wrapper_class")
+    env: VecEnv = BatchVecEnv(env_id, n_envs, n_threads, scripted_starts=scripted, **options)
+    if seed is not None:
+        env.seed(seed)
+    if monitor:
+        env = VecMonitor(env, info_keywords=tuple(info_keywords))
+    return env
