@@ -82,10 +82,14 @@ class BatchVecEnv(VecEnv):
         self.spec = spec
         self.task: ArmTask = env_class.task_class(**{k: v for k, v in kwargs.items() if k in task_arguments})
         self._render_kwargs = {k: v for k, v in kwargs.items() if k not in task_arguments}
+        camera = inspect.signature(env_class).parameters.get("default_camera_config")
+        if camera is not None and "default_camera_config" not in self._render_kwargs:
+            self._render_kwargs["default_camera_config"] = camera.default
         self.render_mode: str | None = self._render_kwargs.get("render_mode")
         self.max_episode_steps = spec.max_episode_steps
         model = self.task.build_model()
         self.model = model
+        self.dt = float(model.opt.timestep) * self.task.frame_skip
         self.batch = mujoco.batch.Batch(model, n_envs, n_threads, persistent=True)
         self.task.setup(model, n_envs)
         self._state = {name: self.batch.bind(name) for name in _STATE_FIELDS}
@@ -98,12 +102,13 @@ class BatchVecEnv(VecEnv):
         self.sim = SimArrays(model, arrays, self.batch.warning[..., 1], contacts=self._contacts)
         self._scripted = self._check_scripted_starts(scripted_starts)
         observation_space = Box(low=-np.inf, high=np.inf, shape=(self.task.observation_dim,), dtype=np.float64)
+        self._env_attributes: list[dict[str, Any]] = [{} for _ in range(n_envs)]  # set_attr's new per-env attributes
         super().__init__(n_envs, observation_space, self.task.action_space(model))
         self._rngs: list[np.random.Generator | None] = [None] * n_envs
         self._episode_steps = np.zeros(n_envs, dtype=np.int64)
         self._observations = np.zeros((n_envs, self.task.observation_dim))
         self._actions: NDArray[np.float64] | None = None
-        self._renderer: Any = None
+        self._renderers: dict[int, Any] = {}  # one per simulation, as each Gymnasium env has its own camera state
         self._render_data: mujoco.MjData | None = None
 
     # ------------------------------------------------------------------ physics
@@ -253,9 +258,9 @@ class BatchVecEnv(VecEnv):
         return self._observations.copy(), reward.astype(np.float32), done, infos
 
     def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        for renderer in self._renderers.values():
+            renderer.close()
+        self._renderers.clear()
 
     def get_images(self) -> Sequence[NDArray[np.uint8] | None]:
         if self.render_mode != "rgb_array":
@@ -266,45 +271,56 @@ class BatchVecEnv(VecEnv):
         """An ``rgb_array`` image of simulation ``i``, as ``gymnasium.make(env_id, render_mode="rgb_array")`` renders."""
         from gymnasium.envs.mujoco.mujoco_rendering import MujocoRenderer
 
-        if self._renderer is None:
+        if i not in self._renderers:
             model = self.model
             width, height = self._render_kwargs.get("width", 480), self._render_kwargs.get("height", 480)
             model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
             model.vis.global_.offheight = max(model.vis.global_.offheight, height)
-            self._render_data = mujoco.MjData(model)
-            self._renderer = MujocoRenderer(
+            if self._render_data is None:
+                self._render_data = mujoco.MjData(model)
+            self._renderers[i] = MujocoRenderer(
                 model, self._render_data, self._render_kwargs.get("default_camera_config"), width, height,
                 self._render_kwargs.get("max_geom", 1000), self._render_kwargs.get("camera_id"),
                 self._render_kwargs.get("camera_name"), self._render_kwargs.get("visual_options", {}),
             )  # fmt: skip
-        self.batch.get_data(i, self._render_data)
-        mujoco.mj_forward(self.model, self._render_data)
-        return self._renderer.render("rgb_array")  # type: ignore[no-any-return]
+        self.batch.get_data(i, self._render_data)  # with the derived fields of the last step, as MjData after mj_step
+        return self._renderers[i].render("rgb_array")  # type: ignore[no-any-return]
 
     def _indices(self, indices: VecEnvIndices) -> list[int]:
         return list(self._get_indices(indices))
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
-        """The task's attribute (``self.task``), per env: a per-simulation array gives env ``i`` its row."""
-        target = self.task if hasattr(self.task, attr_name) else self
-        if not hasattr(target, attr_name):
-            raise AttributeError(f"{self.env_id} has no attribute {attr_name!r}")
-        value = getattr(target, attr_name)
-        per_env = isinstance(value, np.ndarray) and target is self.task and value.shape[:1] == (self.num_envs,)
-        return [value[i] if per_env else value for i in self._indices(indices)]
+        """Per env: an attribute set for it with ``set_attr``, else the task's (``self.task``; a per-simulation array
+        gives env ``i`` its row), else the batch's (``dt``, ``spec``, ``render_mode``, ...)."""
+        values = []
+        for i in self._indices(indices):
+            if attr_name in self._env_attributes[i]:
+                values.append(self._env_attributes[i][attr_name])
+                continue
+            target = self.task if hasattr(self.task, attr_name) else self
+            if not hasattr(target, attr_name):
+                raise AttributeError(f"{self.env_id} has no attribute {attr_name!r}")
+            value = getattr(target, attr_name)
+            per_env = target is self.task and isinstance(value, np.ndarray) and value.shape[:1] == (self.num_envs,)
+            values.append(value[i] if per_env else value)
+        return values
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
-        """Set a task attribute: a per-simulation array's rows for ``indices``, any other for all envs at once."""
-        current = getattr(self.task, attr_name, None)
+        """Set a per-simulation task array's rows for ``indices``; an option of the task only for all envs at once
+        (the simulations share it); any other name as an attribute of each env in ``indices``."""
         rows = self._indices(indices)
+        current = getattr(self.task, attr_name, None)
         if isinstance(current, np.ndarray) and current.shape[:1] == (self.num_envs,):
             current[rows] = value
-        elif sorted(rows) == list(range(self.num_envs)):
+        elif hasattr(self.task, attr_name):
+            if sorted(rows) != list(range(self.num_envs)):
+                raise ValueError(
+                    f"{attr_name!r} is an option of all {self.num_envs} simulations of the batch: set it for all envs"
+                )
             setattr(self.task, attr_name, value)
         else:
-            raise ValueError(
-                f"{attr_name!r} is an option of all {self.num_envs} simulations of the batch: set it for all envs"
-            )
+            for i in rows:
+                self._env_attributes[i][attr_name] = value
 
     def env_method(
         self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any

@@ -1,0 +1,151 @@
+"""The batched engine is the Gymnasium env, batched: the same transitions as SB3's DummyVecEnv over gymnasium.make."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
+
+import grasp_envs
+from grasp_envs import make_batch_env
+from grasp_envs.base import SimArrays
+from grasp_envs.control import point_jacobians
+from grasp_envs.scripted import grasper3d_policy
+from grasp_envs.wrappers import ScriptedStarts
+
+
+def _dummy(env_id: str, n_envs: int, seed: int, scripted: dict[str, Any] | None = None) -> DummyVecEnv:
+    def make() -> gym.Env[Any, Any]:
+        env = gym.make(env_id)
+        return ScriptedStarts(env, **scripted) if scripted else env
+
+    dummy = DummyVecEnv([make] * n_envs)
+    dummy.seed(seed)
+    return dummy
+
+
+def _assert_same_transitions(expected: VecEnv, batch: VecEnv, steps: int, seed: int = 0) -> int:
+    """Step both with the same random actions (beyond the action bounds, so clipping is exercised); every
+    observation, reward, done and info (terminal observations included) equal to 1e-9. Returns the episodes ended."""
+    np.testing.assert_allclose(batch.reset(), expected.reset(), rtol=0, atol=1e-9)
+    assert batch.reset_infos == expected.reset_infos
+    rng = np.random.default_rng(seed)
+    ended = 0
+    for t in range(steps):
+        actions = rng.uniform(-1.2, 1.2, size=(expected.num_envs, *expected.action_space.shape))
+        observation, reward, done, infos = expected.step(actions)
+        batch_observation, batch_reward, batch_done, batch_infos = batch.step(actions)
+        np.testing.assert_allclose(batch_observation, observation, rtol=0, atol=1e-9, err_msg=f"step {t}")
+        np.testing.assert_allclose(batch_reward, reward, rtol=0, atol=1e-9, err_msg=f"step {t}")
+        np.testing.assert_array_equal(batch_done, done, err_msg=f"step {t}")
+        for info, batch_info in zip(infos, batch_infos, strict=True):
+            assert set(batch_info) == set(info), f"step {t}"
+            for key, value in info.items():
+                np.testing.assert_allclose(batch_info[key], value, rtol=0, atol=1e-9, err_msg=f"step {t} {key}")
+        ended += int(done.sum())
+    assert batch.reset_infos == expected.reset_infos
+    return ended
+
+
+@pytest.mark.parametrize("env_id", grasp_envs.ENV_IDS)
+def test_batch_equals_dummy_vec_env_for_every_id(env_id: str) -> None:
+    """n = 1, 7 and 64 simulations on 1 and 2 threads, across resets and autoresets (each id's time limit is 50 or
+    100 steps, so every env ends at least one episode)."""
+    limit = gym.spec(env_id).max_episode_steps
+    assert limit is not None
+    for n_envs, steps in ((1, limit + 5), (7, limit + 5), (64, limit + 3)):
+        dummy = _dummy(env_id, n_envs, seed=11)
+        for n_threads in (1, 2):
+            batch = make_batch_env(env_id, n_envs, seed=11, n_threads=n_threads, monitor=False)
+            dummy.seed(11)
+            assert _assert_same_transitions(dummy, batch, steps) >= n_envs
+
+
+def test_batch_scripted_starts_equal_the_wrapper() -> None:
+    arguments = {"probability": 0.6, "steps": (20, 100), "hold_height": 0.07}
+    dummy = _dummy("Grasper3D-v7", 6, seed=2, scripted=arguments)
+    batch = make_batch_env("Grasper3D-v7", 6, seed=2, monitor=False, wrapper_class=ScriptedStarts, wrapper_kwargs=arguments)
+    assert batch.env_is_wrapped(ScriptedStarts) == [True] * 6
+    _assert_same_transitions(dummy, batch, 230)
+
+
+@pytest.mark.parametrize("env_id", ["Reacher2D-v1", "WallReacher3D-v0", "Grasper3D-v0", "Grasper3D-v7"])
+def test_unstable_simulation_ends_its_episode_alone(env_id: str) -> None:
+    """A diverging simulation (MuJoCo resets it) ends its episode with info["unstable"] and a finite observation;
+    the other simulations of the batch go on, as the DummyVecEnv's do."""
+    dummy = _dummy(env_id, 3, seed=5)
+    batch = make_batch_env(env_id, 3, seed=5, monitor=False)
+    dummy.reset(), batch.reset()
+    dummy.envs[1].unwrapped.data.qvel[:] = 1e12  # type: ignore[attr-defined]
+    batch.unwrapped.batch.bind("qvel")[1] = 1e12  # type: ignore[attr-defined]
+    actions = np.zeros((3, *batch.action_space.shape))
+    observation, reward, done, infos = dummy.step(actions)
+    batch_observation, batch_reward, batch_done, batch_infos = batch.step(actions)
+    assert list(batch_done) == list(done) == [False, True, False]
+    assert batch_infos[1]["unstable"] and infos[1]["unstable"] and batch_reward[1] == 0.0
+    assert np.isfinite(batch_infos[1]["terminal_observation"]).all()
+    np.testing.assert_allclose(batch_infos[1]["terminal_observation"], infos[1]["terminal_observation"], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(batch_observation, observation, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(batch_reward, reward, rtol=0, atol=1e-9)
+
+
+def test_jacobians_equal_mujocos_per_simulation() -> None:
+    """The vectorised Jacobian over the bound cdof and subtree_com is mj_jacSite / mj_jacBody, bit for bit."""
+    env = gym.make("Grasper3D-v7").unwrapped
+    env.reset(seed=0)
+    model, data = env.model, env.data  # type: ignore[attr-defined]
+    site, body = model.site("grip").id, model.body("forearm").id
+    for _ in range(60):
+        env.step(grasper3d_policy(env))  # type: ignore[arg-type]
+        sim = SimArrays.of_data(model, data)
+        jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+        mujoco.mj_jacSite(model, data, jacp, None, site)
+        np.testing.assert_array_equal(point_jacobians(sim, int(model.site_bodyid[site]), sim.site_xpos[:, site])[0][0], jacp)
+        mujoco.mj_jacBody(model, data, jacp, jacr, body)
+        batch_jacp, batch_jacr = point_jacobians(sim, body, sim.xpos[:, body])
+        np.testing.assert_array_equal(batch_jacp[0], jacp)
+        np.testing.assert_array_equal(batch_jacr[0], jacr)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "message"),
+    [
+        ({"n_envs": 0}, ValueError, "n_envs must be an integer >= 1"),
+        ({"n_envs": True}, ValueError, "n_envs must be an integer >= 1"),
+        ({"n_envs": 2, "n_threads": -1}, ValueError, "n_threads must be an integer >= 0"),
+        ({"n_envs": 2, "claw": "magnet"}, ValueError, "claw must be one of"),
+        ({"n_envs": 2, "gripper": "x"}, TypeError, "has no option 'gripper'"),
+        ({"n_envs": 2, "wrapper_class": gym.wrappers.ClipAction}, TypeError, "runs no per-env Gymnasium wrappers"),
+        ({"n_envs": 2, "wrapper_class": ScriptedStarts, "wrapper_kwargs": {"probability": 2.0}}, ValueError, "probability"),
+    ],
+)
+def test_bad_arguments_are_refused(kwargs: dict[str, Any], error: type[Exception], message: str) -> None:
+    with pytest.raises(error, match=message):
+        make_batch_env("Grasper3D-v7", **kwargs)
+
+
+def test_other_ids_and_wrong_actions_are_refused() -> None:
+    with pytest.raises(ValueError, match="runs the tasks of grasp_envs"):
+        make_batch_env("Pendulum-v1", 2)
+    with pytest.raises(TypeError, match="another task"):
+        make_batch_env("Reacher2D-v1", 2, wrapper_class=ScriptedStarts)
+    env = make_batch_env("Reacher2D-v1", 2, seed=0)
+    env.reset()
+    with pytest.raises(ValueError, match=r"actions of shape \(2, 2\)"):
+        env.step(np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="non-finite action for env 1"):
+        env.step(np.array([[0.0, 0.0], [np.nan, 0.0]]))
+
+
+def test_rgb_array_rendering_of_one_simulation_is_the_gymnasium_envs() -> None:
+    batch = make_batch_env("Grasper3D-v7", 3, seed=4, monitor=False, render_mode="rgb_array", width=64, height=48)
+    single = gym.make("Grasper3D-v7", render_mode="rgb_array", width=64, height=48)
+    batch.reset()
+    single.reset(seed=6)  # env 2 of the batch was seeded 4 + 2
+    image = batch.unwrapped.render_env(2)  # type: ignore[attr-defined]
+    assert image.shape == (48, 64, 3) and image.std() > 0
+    np.testing.assert_array_equal(image, single.render())
