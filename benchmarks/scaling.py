@@ -1,11 +1,13 @@
-"""Rollout-collection throughput with DummyVecEnv and SubprocVecEnv at 1, 2, 4, 8, 16 envs.
+"""Rollout-collection throughput with DummyVecEnv, SubprocVecEnv and the batched engine at 1, 2, 4, 8, 16 envs.
 
     python -m benchmarks.scaling [--envs Grasper3D-v0 Reacher2D-v0] [--samples 8192] [--repeats 3]
+                                 [--counts 1 4 16 64] [--vec-envs DummyVecEnv Batch-1-thread Batch-2-threads]
 
 Times TRPOPlus' ``collect_rollouts`` (policy inference, env stepping, buffer, callbacks) for ``--samples``
 env steps; prints env steps/s, the speed-up over one env in one process, and the ratio of the
-per-step collection time to the raw ``env.step`` time. Writes a plot like the thesis' Figures
-5.14-5.16 and the raw numbers to benchmarks/results/.
+per-step collection time to the raw ``env.step`` time; for the batched engine (``grasp_envs.make_batch_env``,
+1 to 16 threads) also the share of the collection time spent in ``mujoco.batch``'s physics steps. Writes a plot
+like the thesis' Figures 5.14-5.16 and the raw numbers to benchmarks/results/.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import os
 import platform
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -25,6 +28,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
 import grasp_envs  # noqa: F401
 from benchmarks.env_speed import time_env_step
+from grasp_envs import BatchVecEnv, make_batch_env
 from sb3_trpo_plus import TRPOPlus
 from sb3_trpo_plus.vec_env import ShardedSubprocVecEnv
 
@@ -39,12 +43,38 @@ VEC_ENVS: dict[str, tuple[type, dict | None]] = {
     "Sharded-2-workers": (ShardedSubprocVecEnv, {"n_workers": 2}),
     # the learner process steps one shard itself: 2 workers = 1 worker process + the learner
     "Sharded-2-workers-in-process": (ShardedSubprocVecEnv, {"n_workers": 2, "in_process": True}),
+    # the batched engine: every simulation in one mujoco.batch.Batch, physics on n_threads threads
+    **{f"Batch-{n}-thread{'s' * (n > 1)}": (BatchVecEnv, {"n_threads": n}) for n in (1, 2, 4, 8, 16)},
 }
 
 
-def collection_rate(env_id: str, label: str, n_envs: int, samples: int, repeats: int) -> list[float]:
+class PhysicsTimer:
+    """Times the calls of a batched env's ``mujoco.batch.Batch.step``: the physics of the collection."""
+
+    def __init__(self, env: BatchVecEnv):
+        self.seconds = 0.0
+        batch, original = env.batch, env.batch.step
+
+        def timed(*args: Any, **kwargs: Any) -> None:
+            start = time.perf_counter()
+            try:
+                original(*args, **kwargs)
+            finally:
+                self.seconds += time.perf_counter() - start
+
+        batch.step = timed
+
+
+def collection_rate(env_id: str, label: str, n_envs: int, samples: int, repeats: int) -> tuple[list[float], list[float]]:
+    """Env steps/s of ``repeats`` collections (after one warm-up), and for the batched engine the physics' share of
+    each (empty otherwise)."""
     vec_env_cls, kwargs = VEC_ENVS[label]
-    env = make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=vec_env_cls, vec_env_kwargs=kwargs)
+    if vec_env_cls is BatchVecEnv:
+        env = make_batch_env(env_id, n_envs, seed=0, **(kwargs or {}))
+        physics: PhysicsTimer | None = PhysicsTimer(env.unwrapped)  # type: ignore[arg-type]
+    else:
+        env = make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=vec_env_cls, vec_env_kwargs=kwargs)
+        physics = None
     n_steps = max(samples // n_envs, 1)
     model = TRPOPlus("MlpPolicy", env, n_steps=n_steps, batch_size=n_steps * n_envs, seed=0,
                      policy_kwargs=dict(net_arch=[100, 100]), device="cpu")  # fmt: skip
@@ -53,13 +83,18 @@ def collection_rate(env_id: str, label: str, n_envs: int, samples: int, repeats:
     callback.init_callback(model)
     model_env = model.get_env()
     assert model_env is not None
-    rates = []
+    rates, shares = [], []
     for _ in range(repeats + 1):
+        if physics is not None:
+            physics.seconds = 0.0
         start = time.perf_counter()
         model.collect_rollouts(model_env, callback, model.rollout_buffer, n_steps)
-        rates.append(n_steps * n_envs / (time.perf_counter() - start))
+        elapsed = time.perf_counter() - start
+        rates.append(n_steps * n_envs / elapsed)
+        if physics is not None:
+            shares.append(physics.seconds / elapsed)
     env.close()
-    return rates[1:]  # first repeat is warm-up
+    return rates[1:], shares[1:]  # first repeat is warm-up
 
 
 def main() -> None:
@@ -83,14 +118,16 @@ def main() -> None:
         rows = {}
         for n in args.counts:  # interleave the vec envs at each size
             for label in args.vec_envs:
-                rates = collection_rate(env_id, label, n, args.samples, args.repeats)
+                rates, shares = collection_rate(env_id, label, n, args.samples, args.repeats)
                 rows[f"{label}-{n}"] = {"vec_env": label, "n_envs": n, "steps_per_s": float(np.median(rates)), "all": rates}
+                if shares:
+                    rows[f"{label}-{n}"]["physics_share"] = float(np.median(shares))
         first = min(args.counts)
         base = rows[f"{args.vec_envs[0]}-{first}"]["steps_per_s"]
         print(f"\n## {env_id} (raw env.step {raw * 1e6:.0f} µs = {1 / raw:,.0f} steps/s in one process)")
         print(f"| vec env | n_envs | env steps/s | speed-up vs {args.vec_envs[0]} at {first} | vs 1 worker | "
-              "collection time / raw env.step |")  # fmt: skip
-        print("|---|---|---|---|---|---|")
+              "collection time / raw env.step | physics share |")  # fmt: skip
+        print("|---|---|---|---|---|---|---|")
         for row in sorted(rows.values(), key=lambda r: (list(VEC_ENVS).index(r["vec_env"]), r["n_envs"])):
             row["speedup"] = row["steps_per_s"] / base
             one_worker = rows.get(f"Sharded-1-worker-{row['n_envs']}", row)["steps_per_s"]
@@ -98,7 +135,8 @@ def main() -> None:
             row["ratio_to_raw_env_step"] = (1 / row["steps_per_s"]) / raw
             print(
                 f"| {row['vec_env']} | {row['n_envs']} | {row['steps_per_s']:,.0f} | {row['speedup']:.2f} | "
-                f"{row['speedup_vs_one_worker']:.2f} | {row['ratio_to_raw_env_step']:.2f} |"
+                f"{row['speedup_vs_one_worker']:.2f} | {row['ratio_to_raw_env_step']:.2f} | "
+                + (f"{row['physics_share']:.0%} |" if "physics_share" in row else "- |")
             )
         results["envs"][env_id] = {"raw_env_step_s": raw, "rows": rows}
     stem = args.name or ("scaling" if args.counts == list(COUNTS) else "scaling_" + "_".join(map(str, args.counts)))

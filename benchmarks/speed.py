@@ -2,12 +2,17 @@
 
     python -m benchmarks.speed [--envs Reacher2D-v0 Grasper3D-v0 Hopper-v5] [--n-envs 8] [--n-steps 256]
                                [--repeats 7] [--out benchmarks/results/speed.json]
+    python -m benchmarks.speed --batch --envs Grasper3D-v7 --n-envs 64 --n-steps 32 --sim-threads 2
 
 Contenders (identical hyperparameters, n_envs and network): sb3-contrib TRPO, TRPOPlus with replay off,
 TRPOPlus with replay_memory=3. Each contender trains one warm-up iteration, then the repeats are
 interleaved (contender A, B, C, A, B, C, ...). Phases: rollout collection, advantage / replay
 recomputation, policy update (gradient, CG with its Fisher products, line search), critic update.
 "Simulation share" = time of raw mj_step calls for the iteration's physics steps / iteration time.
+
+``--batch``: the contenders are sb3-contrib TRPO and TRPOPlus on SB3's DummyVecEnv, and TRPOPlus on the batched
+engine (``grasp_envs.make_batch_env``, ``--sim-threads`` threads), all at the same hyperparameters and ``n_envs``;
+"physics share" is then the time inside ``mujoco.batch``'s steps / the batched contender's collection time.
 """
 
 from __future__ import annotations
@@ -30,8 +35,9 @@ from sb3_contrib import TRPO
 from stable_baselines3.common.env_util import make_vec_env
 from torch import nn
 
-import grasp_envs  # noqa: F401
 from benchmarks.env_speed import time_mj_step
+from benchmarks.scaling import PhysicsTimer
+from grasp_envs import make_batch_env
 from sb3_trpo_plus import TRPOPlus
 
 PHASES = ("rollout", "recompute", "policy", "critic")
@@ -109,15 +115,21 @@ class PhaseTimer:
         self.fvp = 0
 
 
-def build(name: str, env_id: str, n_envs: int, n_steps: int, seed: int) -> Any:
-    env = make_vec_env(env_id, n_envs=n_envs, seed=seed)
+BATCHED = "TRPOPlus[batch]"
+
+
+def build(name: str, env_id: str, n_envs: int, n_steps: int, seed: int, sim_threads: int = 1) -> Any:
+    if name == BATCHED:
+        env = make_batch_env(env_id, n_envs, seed=seed, n_threads=sim_threads)
+    else:
+        env = make_vec_env(env_id, n_envs=n_envs, seed=seed)
     common: dict[str, Any] = dict(
         n_steps=n_steps, batch_size=n_steps * n_envs // 4, cg_max_steps=10, n_critic_updates=10, seed=seed,
         policy_kwargs=dict(net_arch=[100, 100], activation_fn=nn.Tanh), device="cpu",
     )  # fmt: skip
     if name == "sb3_contrib.TRPO":
         return TRPO("MlpPolicy", env, **common)
-    if name == "TRPOPlus":
+    if name in ("TRPOPlus", BATCHED):
         return TRPOPlus("MlpPolicy", env, **common)
     if name == "TRPOPlus(k=3)":
         return TRPOPlus("MlpPolicy", env, replay_memory=3, **common)
@@ -142,10 +154,16 @@ def main() -> None:
     parser.add_argument("--n-steps", type=int, default=256)
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--out", default="benchmarks/results/speed.json")
+    parser.add_argument("--batch", action="store_true", help="TRPO and TRPOPlus on DummyVecEnv, TRPOPlus batched")
+    parser.add_argument("--sim-threads", type=int, default=1, help="threads of the batched engine's physics")
+    parser.add_argument("--out", default=None, help="default: benchmarks/results/speed[_batch].json")
     args = parser.parse_args()
+    args.out = args.out or f"benchmarks/results/speed{'_batch' * args.batch}.json"
     th.set_num_threads(args.threads)
-    contenders = ["sb3_contrib.TRPO", "TRPOPlus", "TRPOPlus(k=3)", "TRPOPlus(k=3,fisher/4)"]
+    if args.batch:
+        contenders = ["sb3_contrib.TRPO", "TRPOPlus", BATCHED]
+    else:
+        contenders = ["sb3_contrib.TRPO", "TRPOPlus", "TRPOPlus(k=3)", "TRPOPlus(k=3,fisher/4)"]
     results: dict[str, Any] = {
         "command": "python -m benchmarks.speed --envs "
         + " ".join(args.envs)
@@ -171,19 +189,24 @@ def main() -> None:
     }
     samples = args.n_envs * args.n_steps
     for env_id in args.envs:
-        models = {name: build(name, env_id, args.n_envs, args.n_steps, seed=0) for name in contenders}
+        models = {name: build(name, env_id, args.n_envs, args.n_steps, 0, args.sim_threads) for name in contenders}
         timers = {name: PhaseTimer(model) for name, model in models.items()}
+        physics = PhysicsTimer(models[BATCHED].get_env().unwrapped) if BATCHED in models else None
         for name, model in models.items():  # warm-up, and fills the replay memory
             model.learn(samples * (4 if "k=3" in name else 1))
         rows: dict[str, list[dict[str, float]]] = defaultdict(list)
         for _ in range(args.repeats):
             for name, model in models.items():
                 timers[name].reset()
+                if physics is not None:
+                    physics.seconds = 0.0
                 start = time.perf_counter()
                 model.learn(samples, reset_num_timesteps=False)
                 total = time.perf_counter() - start
                 row = {phase: timers[name].times.get(phase, 0.0) for phase in PHASES}
                 row.update(total=total, fisher_products=timers[name].fisher_products())
+                if name == BATCHED and physics is not None:
+                    row["physics_share_of_rollout"] = physics.seconds / row["rollout"]
                 rows[name].append(row)
             rows["raw_mj_step"].append({"total": time_mj_step(env_id, samples) * samples})  # `samples` env steps
         summary: dict[str, Any] = {}
@@ -203,6 +226,7 @@ def main() -> None:
             s["ratio_iteration_vs_trpo"] = s["total"]["median"] / anchor["total"]["median"]
             s["simulation_share"] = raw / s["total"]["median"]
             s["env_steps_per_s"] = samples / s["total"]["median"]
+            s["ratio_rollout_vs_trpo"] = s["rollout"]["median"] / anchor["rollout"]["median"]
         results["envs"][env_id] = summary
         print(f"\n## {env_id}  ({samples} samples / iteration, raw mj_step {raw * 1e3:.1f} ms)")
         print("| contender | iteration (ms) | rollout | recompute | policy update | critic | FVPs | policy vs TRPO | "
@@ -210,6 +234,11 @@ def main() -> None:
         print("|---|---|---|---|---|---|---|---|---|---|---|")
         for name in contenders:
             print(_table_row(name, summary[name]))
+        if BATCHED in summary:
+            b = summary[BATCHED]
+            print(f"\n{BATCHED}: training {1 / b['ratio_iteration_vs_trpo']:.2f}x sb3-contrib TRPO on DummyVecEnv, "
+                  f"collection {1 / b['ratio_rollout_vs_trpo']:.2f}x, physics "
+                  f"{b['physics_share_of_rollout']['median']:.0%} of the collection time")  # fmt: skip
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(results, indent=1))
     print(f"\nraw results: {args.out}")

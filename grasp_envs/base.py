@@ -77,6 +77,7 @@ class SimArrays:
         self.model = model
         self.data = data
         self.contacts = contacts
+        self.chains: dict[int, NDArray[np.int64]] = {}  # body -> the dofs that move it (grasp_envs.control)
         self.n = len(arrays["qpos"])
         for name in SIM_FIELDS:
             setattr(self, name, arrays[name])
@@ -165,9 +166,11 @@ class ArmTask:
         self.ctrl_low = model.actuator_ctrlrange[:, 0].copy()
         self.ctrl_high = model.actuator_ctrlrange[:, 1].copy()
         self.default_mocap_pos = mujoco.MjData(model).mocap_pos.copy()
-        self._contact_geoms = np.array(
-            [(model.geom(a).id, model.geom(b).id) for a, b in self.contact_pairs], dtype=np.int64
-        ).reshape(-1, 2)
+        # geom id pair (either order) -> index in contact_pairs, or -1
+        self._pair_of_geoms = np.full((model.ngeom, model.ngeom), -1, dtype=np.int64)
+        for index, (first, second) in enumerate(self.contact_pairs):
+            a, b = model.geom(first).id, model.geom(second).id
+            self._pair_of_geoms[a, b] = self._pair_of_geoms[b, a] = index
 
     def action_space(self, model: mujoco.MjModel) -> Box:
         """The actuators' control ranges, as Gymnasium's ``MujocoEnv`` makes them."""
@@ -183,10 +186,8 @@ class ArmTask:
     def count_contacts(self, data: mujoco.MjData) -> NDArray[np.float64]:
         """Contacts between each ``contact_pairs`` pair in ``data``'s contact list, ``(len(contact_pairs),)``."""
         geoms = data.contact.geom[: data.ncon]
-        first, second = geoms[:, :1], geoms[:, 1:]
-        pair_first, pair_second = self._contact_geoms[:, 0], self._contact_geoms[:, 1]
-        match = ((first == pair_first) & (second == pair_second)) | ((first == pair_second) & (second == pair_first))
-        return match.sum(axis=0, dtype=np.float64)  # type: ignore[no-any-return]
+        pairs = self._pair_of_geoms[geoms[:, 0], geoms[:, 1]]
+        return np.bincount(pairs[pairs >= 0], minlength=len(self.contact_pairs)).astype(np.float64)
 
     def contact_counts(self, sim: SimArrays) -> NDArray[np.float64]:
         """Contacts between each ``contact_pairs`` pair, ``(n, len(contact_pairs))``: those of the last collision
@@ -253,6 +254,12 @@ class ArmTask:
 def info_of(info: dict[str, NDArray[Any]], i: int) -> dict[str, Any]:
     """Simulation ``i``'s info dict, with Python scalars."""
     return {key: value[i].item() for key, value in info.items()}
+
+
+def infos_of(info: dict[str, NDArray[Any]], n: int) -> list[dict[str, Any]]:
+    """Every simulation's info dict, with Python scalars (``info_of`` for each, in one conversion per key)."""
+    columns = {key: value.tolist() for key, value in info.items()}
+    return [{key: column[i] for key, column in columns.items()} for i in range(n)]
 
 
 class ArmEnv(MujocoEnv, utils.EzPickle):

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
-from grasp_envs.base import SIM_FIELDS, ArmEnv, ArmTask, SimArrays, info_of
+from grasp_envs.base import SIM_FIELDS, ArmEnv, ArmTask, SimArrays, info_of, infos_of
 
 # MjData fields that are state (bound as live views); the others are derived, refreshed by each batch call
 _STATE_FIELDS = ("qpos", "qvel", "ctrl", "mocap_pos")
@@ -244,7 +244,7 @@ class BatchVecEnv(VecEnv):
         limit = self.max_episode_steps
         truncated = self._episode_steps >= limit if limit is not None else np.zeros(self.num_envs, dtype=bool)
         done = terminated | truncated
-        infos = [info_of(info, i) for i in range(self.num_envs)]
+        infos = infos_of(info, self.num_envs)
         for i, env_info in enumerate(infos):  # as SB3's DummyVecEnv: on every step
             env_info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
         for i in np.flatnonzero(done):

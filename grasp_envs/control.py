@@ -23,7 +23,11 @@ def cross(a: Array, b: Array) -> Array:
     """Cross products over the last axis, in the operation order of MuJoCo's ``mju_cross`` (bit-equal results)."""
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
 
 
 def chain_dofs(model: mujoco.MjModel, body: int) -> NDArray[np.int64]:
@@ -38,14 +42,19 @@ def chain_dofs(model: mujoco.MjModel, body: int) -> NDArray[np.int64]:
 
 def point_jacobians(sim: SimArrays, body: int, point: Array) -> tuple[Array, Array]:
     """Translational and rotational Jacobians ``(n, 3, nv)`` of the world points ``point`` ``(n, 3)`` fixed to
-    ``body``: MuJoCo's ``mj_jac`` over the bound ``cdof`` and ``subtree_com``, for all simulations at once (bit-equal
-    to ``mj_jac`` per simulation, tested)."""
+    ``body``: MuJoCo's ``mj_jac``. One ``MjData`` (a batch of one) calls it; a batch computes it for all simulations at
+    once from the bound ``cdof`` and ``subtree_com``, in ``mj_jac``'s operation order (bit-equal, tested)."""
     model = sim.model
-    dofs = chain_dofs(model, body)
-    offset = point - sim.subtree_com[:, model.body_rootid[body]]
-    motion = sim.cdof[:, dofs]  # (n, k, 6): rotation then translation
     jacp = np.zeros((sim.n, 3, model.nv))
     jacr = np.zeros((sim.n, 3, model.nv))
+    if sim.data is not None:
+        mujoco.mj_jac(model, sim.data, jacp[0], jacr[0], point[0], body)
+        return jacp, jacr
+    dofs = sim.chains.get(body)
+    if dofs is None:
+        dofs = sim.chains[body] = chain_dofs(model, body)
+    offset = point - sim.subtree_com[:, model.body_rootid[body]]
+    motion = sim.cdof[:, dofs]  # (n, k, 6): rotation then translation
     jacp[:, :, dofs] = (motion[..., 3:] + cross(motion[..., :3], offset[:, None, :])).transpose(0, 2, 1)
     jacr[:, :, dofs] = motion[..., :3].transpose(0, 2, 1)
     return jacp, jacr

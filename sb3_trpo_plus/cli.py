@@ -108,25 +108,67 @@ def _save_cleanly_on_interrupt() -> None:
     ExperimentManager.save_trained_model = save_trained_model  # type: ignore[method-assign]
 
 
-def train(argv: Sequence[str]) -> None:
-    """``trpo-plus train --env ID [--algo trpo_plus|trpo|ppo] [rl_zoo3 train flags]``.
+def _batched_training_envs(n_threads: int) -> None:
+    """Make rl-zoo3 build the training env of a grasp_envs id with the batched engine (``make_batch_env``): the same
+    seeds (env ``i``: ``seed + i``), ``env_kwargs`` and ``env_wrapper`` (``ScriptedStarts`` runs batched; any other
+    wrapper is refused), episode statistics from a ``VecMonitor`` (``<run>/batch.monitor.csv``). The evaluation env
+    stays rl-zoo3's."""
+    from rl_zoo3 import exp_manager
 
-    Ctrl-C stops at the next env step and saves the run (model, replay memory, VecNormalize statistics), from which
-    ``-i <run>/<ENV>.zip`` resumes.
+    from sb3_trpo_plus.zoo import batch_training_env
+
+    manager = exp_manager.ExperimentManager
+    if getattr(manager.create_envs, "_batched", 0) == n_threads:
+        return
+    original = getattr(manager.create_envs, "__wrapped__", manager.create_envs)
+
+    @functools.wraps(original)
+    def create_envs(self: Any, n_envs: int, eval_env: bool = False, no_log: bool = False) -> Any:
+        if eval_env:
+            return original(self, n_envs, eval_env, no_log)
+        plain = exp_manager.make_vec_env
+        exp_manager.make_vec_env = functools.partial(batch_training_env, self.env_name.gym_id, n_threads)
+        try:
+            return original(self, n_envs, eval_env, no_log)
+        finally:
+            exp_manager.make_vec_env = plain
+
+    create_envs._batched = n_threads  # type: ignore[attr-defined]
+    manager.create_envs = create_envs  # type: ignore[method-assign]
+
+
+def train(argv: Sequence[str]) -> None:
+    """``trpo-plus train --env ID [--algo trpo_plus|trpo|ppo] [--vec-env dummy|subproc|batch] [--sim-threads N]
+    [rl_zoo3 train flags]``.
+
+    ``--vec-env batch`` steps the training envs with the batched engine (``grasp_envs.make_batch_env``, physics on
+    ``--sim-threads`` threads): the same transitions as ``dummy``, faster. Ctrl-C stops at the next env step and saves
+    the run (model, replay memory, VecNormalize statistics), from which ``-i <run>/<ENV>.zip`` resumes.
     """
     parser = argparse.ArgumentParser(prog="trpo-plus train", add_help=False)
     parser.add_argument("--algo", default="trpo_plus", choices=ALGO_CHOICES)
     parser.add_argument("--env", required=True)
+    parser.add_argument("--vec-env", default="dummy", choices=("dummy", "subproc", "batch"))
+    parser.add_argument("--sim-threads", type=int, default=1, help="threads of the batched engine's physics")
     known, rest = parser.parse_known_args(argv)
     if "-h" in rest or "--help" in rest:
         parser.print_help()
     from rl_zoo3.train import train as zoo_train
 
-    import grasp_envs  # noqa: F401
+    import grasp_envs
 
+    if known.sim_threads < 0:
+        parser.error(f"--sim-threads must be >= 0 (0: every CPU), got {known.sim_threads}")
+    if known.vec_env == "batch":
+        if known.env not in grasp_envs.ENV_IDS:
+            parser.error(f"--vec-env batch runs the tasks of grasp_envs ({', '.join(grasp_envs.ENV_IDS)}), got {known.env}")
+        _batched_training_envs(known.sim_threads)
+    elif known.sim_threads != 1:
+        parser.error("--sim-threads sets the batched engine's threads: it needs --vec-env batch")
     _name_tensorboard_runs()
     _save_cleanly_on_interrupt()
-    sys.argv = ["trpo-plus train", *_zoo_argv(known.algo, known.env, rest)]
+    vec_env = "dummy" if known.vec_env == "batch" else known.vec_env
+    sys.argv = ["trpo-plus train", *_zoo_argv(known.algo, known.env, [*rest, "--vec-env", vec_env])]
     zoo_train()
 
 

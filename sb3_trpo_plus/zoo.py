@@ -348,3 +348,52 @@ def _leave_training_aids_out_of_evaluation() -> None:
     for module in modules:
         if hasattr(module, "create_test_env"):
             module.create_test_env = _create_test_env  # type: ignore[attr-defined]
+
+
+def batch_training_env(
+    env_id: str,
+    n_threads: int,
+    env_fn: Any,
+    n_envs: int = 1,
+    seed: int | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    monitor_dir: str | None = None,
+    wrapper_class: Any = None,
+    vec_env_cls: Any = None,
+    vec_env_kwargs: dict[str, Any] | None = None,
+    monitor_kwargs: dict[str, Any] | None = None,
+) -> Any:
+    """``make_vec_env``'s signature, answered by the batched engine (``grasp_envs.make_batch_env``) for ``env_id``.
+
+    ``wrapper_class`` is rl-zoo3's ``env_wrapper`` (a class, or the function that applies a YAML list of them): only
+    ``grasp_envs.wrappers.ScriptedStarts`` can be run batched, any other raises ``TypeError`` naming it.
+    """
+    import inspect
+    import os
+
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from grasp_envs import make_batch_env
+    from grasp_envs.wrappers import ScriptedStarts
+
+    wrappers: list[tuple[Any, dict[str, Any]]] = []
+    if isinstance(wrapper_class, type):
+        wrappers = [(wrapper_class, {})]
+    elif wrapper_class is not None:  # rl_zoo3.utils.get_wrapper_class's wrap_env(env)
+        cells = inspect.getclosurevars(wrapper_class).nonlocals
+        wrappers = list(zip(cells.get("wrapper_classes", []), cells.get("wrapper_kwargs", []), strict=True))
+        if not wrappers:
+            raise TypeError(f"--vec-env batch cannot read the env_wrapper {wrapper_class!r}")
+    others = [getattr(cls, "__name__", str(cls)) for cls, _ in wrappers if cls is not ScriptedStarts]
+    if others or len(wrappers) > 1:
+        raise TypeError(
+            f"--vec-env batch runs no per-env Gymnasium wrappers but ScriptedStarts (once); the env_wrapper has "
+            f"{', '.join(others) or 'ScriptedStarts twice'}: use --vec-env dummy"
+        )
+    env = make_batch_env(
+        env_id, n_envs, seed=seed, n_threads=n_threads, monitor=False,
+        wrapper_class=ScriptedStarts if wrappers else None, wrapper_kwargs=dict(wrappers[0][1]) if wrappers else None,
+        **(env_kwargs or {}),
+    )  # fmt: skip
+    filename = None if monitor_dir is None else os.path.join(monitor_dir, "batch")
+    return VecMonitor(env, filename=filename, **(monitor_kwargs or {}))

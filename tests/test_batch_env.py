@@ -94,14 +94,16 @@ def test_unstable_simulation_ends_its_episode_alone(env_id: str) -> None:
 
 
 def test_jacobians_equal_mujocos_per_simulation() -> None:
-    """The vectorised Jacobian over the bound cdof and subtree_com is mj_jacSite / mj_jacBody, bit for bit."""
+    """The vectorised Jacobian over the bound cdof and subtree_com (a batch's, here a copy of one simulation's
+    arrays: ``take``) is mj_jacSite / mj_jacBody, bit for bit."""
     env = gym.make("Grasper3D-v7").unwrapped
     env.reset(seed=0)
     model, data = env.model, env.data  # type: ignore[attr-defined]
     site, body = model.site("grip").id, model.body("forearm").id
     for _ in range(60):
         env.step(grasper3d_policy(env))  # type: ignore[arg-type]
-        sim = SimArrays.of_data(model, data)
+        sim = SimArrays.of_data(model, data).take(np.array([0]))
+        assert sim.data is None  # the batch's path, not MjData's
         jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
         mujoco.mj_jacSite(model, data, jacp, None, site)
         np.testing.assert_array_equal(point_jacobians(sim, int(model.site_bodyid[site]), sim.site_xpos[:, site])[0][0], jacp)

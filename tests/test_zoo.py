@@ -203,3 +203,33 @@ def test_a_saved_runs_env_kwargs_come_back_as_rl_zoo3s_enjoy_reads_them(tmp_path
     assert start_pose() == "stretched"
     (run / "Grasper3D-v6" / "args.yml").write_text("env_kwargs: null\n")  # not given on the command line
     assert start_pose() == "ready"
+
+
+def test_train_with_the_batched_engine_trains_as_with_dummy_vec_env(tmp_path: Path, monkeypatch) -> None:
+    """``--vec-env batch``: the same transitions as ``dummy`` (scripted starts of the recipe included), so the same
+    trained parameters; episode statistics in the run's monitor file."""
+    monkeypatch.chdir(tmp_path)
+    params = {}
+    for vec_env in ("dummy", "batch"):
+        logs = tmp_path / vec_env
+        cli.main(
+            ["train", "--env", "Grasper3D-v7", "-n", "256", "--seed", "3", "-f", str(logs), "--eval-freq", "-1",
+             "--vec-env", vec_env, "-params", "n_envs:2", "n_steps:64", "batch_size:64", "--num-threads", "1"]
+        )  # fmt: skip
+        from sb3_trpo_plus import TRPOPlus
+
+        run = logs / "trpo_plus" / "Grasper3D-v7_1"
+        params[vec_env] = TRPOPlus.load(run / "Grasper3D-v7.zip").policy.state_dict()
+        assert list(run.glob("*monitor.csv"))
+    assert params["dummy"].keys() == params["batch"].keys()
+    for key, value in params["dummy"].items():
+        np.testing.assert_array_equal(params["batch"][key].numpy(), value.numpy(), err_msg=key)
+
+
+def test_batched_engine_flags_are_checked(capsys) -> None:
+    with pytest.raises(SystemExit):
+        cli.main(["train", "--env", "Pendulum-v1", "--vec-env", "batch"])
+    assert "--vec-env batch runs the tasks of grasp_envs" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.main(["train", "--env", "Grasper3D-v7", "--sim-threads", "2"])
+    assert "it needs --vec-env batch" in capsys.readouterr().err
