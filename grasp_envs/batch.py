@@ -58,6 +58,25 @@ class BatchVecEnv(VecEnv):
         arguments (``render_mode``, ``width``, ``height``, ``camera_id``, ``camera_name``, ``default_camera_config``)
     """
 
+    action_space: Box
+    observation_space: Box
+    batch: Any  # mujoco.batch.Batch
+    model: mujoco.MjModel
+    task: ArmTask
+    sim: SimArrays
+    spec: Any
+    env_id: str
+    max_episode_steps: int | None
+    _state: dict[str, NDArray[np.float64]]
+    _derived: dict[str, NDArray[np.float64]]
+    _snapshot: dict[str, NDArray[np.float64]]
+    _contacts: NDArray[np.float64]
+    _contact_data: mujoco.MjData
+    _scripted: dict[str, Any] | None
+    _episode_steps: NDArray[np.int64]
+    _observations: NDArray[np.float64]
+    _render_kwargs: dict[str, Any]
+
     def __init__(
         self,
         env_id: str,
@@ -80,7 +99,7 @@ class BatchVecEnv(VecEnv):
             raise TypeError(f"{env_id} has no option {', '.join(map(repr, unknown))}")
         self.env_id = env_id
         self.spec = spec
-        self.task: ArmTask = env_class.task_class(**{k: v for k, v in kwargs.items() if k in task_arguments})
+        self.task = env_class.task_class(**{k: v for k, v in kwargs.items() if k in task_arguments})
         self._render_kwargs = {k: v for k, v in kwargs.items() if k not in task_arguments}
         camera = inspect.signature(env_class).parameters.get("default_camera_config")
         if camera is not None and "default_camera_config" not in self._render_kwargs:
@@ -247,13 +266,13 @@ class BatchVecEnv(VecEnv):
         infos = infos_of(info, self.num_envs)
         for i, env_info in enumerate(infos):  # as SB3's DummyVecEnv: on every step
             env_info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
-        for i in np.flatnonzero(done):
-            infos[i]["terminal_observation"] = observation[i].copy()
-        if done.any():
-            ids = np.flatnonzero(done)
+        ids = np.flatnonzero(done)
+        for index in ids:
+            infos[index]["terminal_observation"] = observation[index].copy()
+        if len(ids):
             observation[ids], reset_infos = self._reset_envs(ids)
-            for i, reset_info in zip(ids, reset_infos, strict=True):
-                self.reset_infos[i] = reset_info
+            for index, reset_info in zip(ids, reset_infos, strict=True):
+                self.reset_infos[index] = reset_info
         self._observations[:] = observation
         return self._observations.copy(), reward.astype(np.float32), done, infos
 

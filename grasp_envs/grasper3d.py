@@ -693,7 +693,7 @@ class Grasper3DEnv(ArmEnv):
         lift_height: float = 0.05,
         **kwargs: Any,
     ):
-        options = dict(
+        options: dict[str, Any] = dict(
             xml_file=xml_file, frame_skip=frame_skip, claw=claw, control=control, ik_mode=ik_mode,
             max_grip_speed=max_grip_speed, claw_rate=claw_rate, observation=observation,
             observe_claw_torque=observe_claw_torque, cube_rotation=cube_rotation, start_pose=start_pose,

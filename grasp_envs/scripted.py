@@ -88,10 +88,8 @@ def grasper3d_actions(
     approach *= np.minimum(1.0, max_speed / np.maximum(norm(approach), 1e-9))[:, None]
     if servo:
         claw = np.where(claw > 0, SERVO_GRIP_COMMAND, -1.0)
-    if task.control == "grip_velocity":  # the action is the grip velocity itself
-        arm = approach / task.max_grip_speed
-    else:
-        arm = grip_down_commands(sim, approach)
+    # with grip-velocity control the action is the grip velocity itself
+    arm = approach / task.max_grip_speed if task.control == "grip_velocity" else grip_down_commands(sim, approach)
     return np.clip(np.concatenate([arm, claw[:, None]], axis=1), action_low, action_high)  # type: ignore[no-any-return]
 
 
