@@ -185,9 +185,18 @@ class ArmTask:
 
     def count_contacts(self, data: mujoco.MjData) -> NDArray[np.float64]:
         """Contacts between each ``contact_pairs`` pair in ``data``'s contact list, ``(len(contact_pairs),)``."""
-        geoms = data.contact.geom[: data.ncon]
-        pairs = self._pair_of_geoms[geoms[:, 0], geoms[:, 1]]
-        return np.bincount(pairs[pairs >= 0], minlength=len(self.contact_pairs)).astype(np.float64)
+        return self.count_contact_lists([data.contact.geom[: data.ncon]])[0]
+
+    def count_contact_lists(self, geoms: list[NDArray[np.int32]]) -> NDArray[np.float64]:
+        """``count_contacts`` of several simulations' contact lists (geom id pairs, ``(ncon, 2)`` each) in one go,
+        ``(len(geoms), len(contact_pairs))``."""
+        n_pairs = len(self.contact_pairs)
+        sims = np.repeat(np.arange(len(geoms)), [len(g) for g in geoms])
+        stacked = np.concatenate(geoms) if geoms else np.zeros((0, 2), dtype=np.int32)
+        pairs = self._pair_of_geoms[stacked[:, 0], stacked[:, 1]]
+        found = pairs >= 0
+        counts = np.bincount(sims[found] * n_pairs + pairs[found], minlength=len(geoms) * n_pairs)
+        return counts.reshape(len(geoms), n_pairs).astype(np.float64)
 
     def contact_counts(self, sim: SimArrays) -> NDArray[np.float64]:
         """Contacts between each ``contact_pairs`` pair, ``(n, len(contact_pairs))``: those of the last collision

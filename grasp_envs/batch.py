@@ -139,9 +139,12 @@ class BatchVecEnv(VecEnv):
             else:
                 self._snapshot[name][ids] = array[ids]
         if self.task.contact_pairs:  # the contact list has no batched binding: read each simulation's MjData
-            for i in range(self.num_envs) if ids is None else ids:
-                self.batch.get_data(int(i), self._contact_data)
-                self._contacts[i] = self.task.count_contacts(self._contact_data)
+            rows = range(self.num_envs) if ids is None else ids
+            data, geoms = self._contact_data, []
+            for i in rows:
+                self.batch.get_data(int(i), data)
+                geoms.append(data.contact.geom[: data.ncon].copy())
+            self._contacts[list(rows)] = self.task.count_contact_lists(geoms)
 
     def _physics_step(self, ids: NDArray[np.int64] | None, ctrl: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Step ``ids`` (all: ``None``) with ``ctrl``; reset and report those that became unstable."""
