@@ -219,7 +219,7 @@ def success_parts(arm: Any) -> dict[str, bool]:
         zip(
             LOSS_PARTS,
             (
-                arm.cube_height() >= arm._lift_height,
+                arm.cube_height() >= arm.task.lift_height,
                 contacts["right"] > 0,
                 contacts["left"] > 0,
                 0.0 < t < 1.0,

@@ -151,3 +151,24 @@ def test_rgb_array_rendering_of_one_simulation_is_the_gymnasium_envs() -> None:
     image = batch.unwrapped.render_env(2)  # type: ignore[attr-defined]
     assert image.shape == (48, 64, 3) and image.std() > 0
     np.testing.assert_array_equal(image, single.render())
+
+
+def test_trpo_plus_trains_on_it_with_vec_normalize_eval_callback_and_save_load(tmp_path: Any) -> None:
+    from stable_baselines3.common.callbacks import EvalCallback
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from sb3_trpo_plus import TRPOPlus
+
+    env = VecNormalize(make_batch_env("Grasper3D-v7", 4, seed=0, n_threads=2))
+    evaluation = VecNormalize(make_batch_env("Grasper3D-v7", 2, seed=100), training=False, norm_reward=False)
+    callback = EvalCallback(evaluation, n_eval_episodes=2, eval_freq=64, log_path=str(tmp_path), verbose=0)
+    model = TRPOPlus("MlpPolicy", env, n_steps=64, batch_size=256, replay_memory=2, cg_warm_start=True, seed=0)
+    model.learn(512, callback=callback)
+    assert callback.n_calls == 128 and len(callback.evaluations_results) == 2
+    assert len(model.ep_info_buffer) > 0 and "is_success" in model.ep_info_buffer[0]  # VecMonitor's episode records
+    model.save(tmp_path / "model.zip")
+    env.save(str(tmp_path / "vecnormalize.pkl"))
+    loaded = TRPOPlus.load(tmp_path / "model.zip", env=VecNormalize.load(str(tmp_path / "vecnormalize.pkl"), env.venv))
+    observation = env.reset()
+    expected = model.predict(observation, deterministic=True)[0]
+    np.testing.assert_array_equal(loaded.predict(observation, deterministic=True)[0], expected)

@@ -32,8 +32,9 @@ def test_same_transitions_as_dummy_vec_env(n_workers: int, in_process: bool) -> 
         assert sharded.get_attr("frame_skip", [1, 4]) == [2, 2]
         assert sharded.env_method("distance", indices=[0, 3]) == dummy.env_method("distance", indices=[0, 3])
         assert all(sharded.env_is_wrapped(Monitor))
-        sharded.set_attr("_success_distance", 0.5, indices=[2])
-        assert sharded.get_attr("_success_distance") == [0.02, 0.02, 0.5, 0.02, 0.02]
+        sharded.set_attr("noted_goal", 0.5)
+        sharded.set_attr("noted_goal", 0.02, indices=[0, 1, 3, 4])
+        assert sharded.get_attr("noted_goal") == [0.02, 0.02, 0.5, 0.02, 0.02]
     finally:
         sharded.close()
 
