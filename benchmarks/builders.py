@@ -30,22 +30,28 @@ def train_wrapper_class(variant: str) -> Callable[[Any], Any] | None:
     return get_wrapper_class({"env_wrapper": wrappers})
 
 
-def training_envs(env_id: str, variant: str, seed: int, monitor_kwargs: dict[str, Any] | None = None) -> Any:
+def training_envs(
+    env_id: str, variant: str, seed: int, monitor_kwargs: dict[str, Any] | None = None, vec_env: str = "dummy"
+) -> Any:
     """New training envs of ``variant`` (monitored, wrapped in its training wrappers) seeded with ``seed``, without
-    VecNormalize: the runner adds or loads it."""
+    VecNormalize: the runner adds or loads it. ``vec_env="batch"``: the batched engine (``grasp_envs.make_batch_env``,
+    one physics thread), whose transitions are DummyVecEnv's."""
     from stable_baselines3.common.env_util import make_vec_env
 
     import grasp_envs  # noqa: F401  (registers the envs)
 
     config = model_settings(env_id, variant)
-    return make_vec_env(
-        env_id,
-        n_envs=config.n_envs,
-        seed=seed,
-        env_kwargs=config.env_kwargs,
-        wrapper_class=train_wrapper_class(variant),
+    kwargs: dict[str, Any] = dict(
+        n_envs=config.n_envs, seed=seed, env_kwargs=config.env_kwargs, wrapper_class=train_wrapper_class(variant),
         monitor_kwargs=monitor_kwargs,
-    )
+    )  # fmt: skip
+    if vec_env == "batch":
+        from sb3_trpo_plus.zoo import batch_training_env
+
+        return batch_training_env(env_id, 1, None, **kwargs)
+    if vec_env != "dummy":
+        raise ValueError(f"vec_env must be 'dummy' or 'batch', got {vec_env!r}")
+    return make_vec_env(env_id, **kwargs)
 
 
 def normalized_training_envs(env_id: str, variant: str, seed: int) -> Any:

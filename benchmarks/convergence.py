@@ -97,12 +97,16 @@ def main(argv: Sequence[str] | None = None) -> None:
             "--keep-checkpoints", type=Path, default=None, metavar="DIR",
             help="also keep every chunk's checkpoint, in DIR/<timesteps>/<env>/<variant>/seed<k>/",
         )  # fmt: skip
+        command.add_argument(
+            "--vec-env", choices=("dummy", "batch"), default="dummy",
+            help="training envs: SB3's DummyVecEnv or the batched engine (the same transitions, faster)",
+        )  # fmt: skip
     args = parser.parse_args(argv)
     out = Path(args.out)
     if args.command == "run":
-        run_study(args.envs, args.variants, args.seeds, args.jobs, out, args.steps, args.keep_checkpoints)
+        run_study(args.envs, args.variants, args.seeds, args.jobs, out, args.steps, args.keep_checkpoints, args.vec_env)
     elif args.command == "job":
-        run_job(args.env, args.variant, args.seed, args.steps, out, args.keep_checkpoints)
+        run_job(args.env, args.variant, args.seed, args.steps, out, args.keep_checkpoints, args.vec_env)
     elif args.command == "reevaluate" and args.confirm:
         names = ("episodes", "reset_seed", "timesteps")
         if given := [f"--{n.replace('_', '-')}" for n in names if getattr(args, n) is not None]:

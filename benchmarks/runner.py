@@ -27,7 +27,9 @@ CHUNKS = 25
 BRANCH_SETTINGS = ("target_kl", "n_steps", "replay_memory")
 
 
-def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path, keep: Path | None = None) -> None:
+def run_job(
+    env_id: str, variant: str, seed: int, steps: int, out: Path, keep: Path | None = None, vec_env: str = "dummy"
+) -> None:
     """Train one (env, variant, seed) to ``steps`` in chunks, resuming from the last saved chunk.
 
     With ``keep``, every chunk's checkpoint and CSV are also copied to ``keep/<timesteps>/<env>/<variant>/seed<k>``.
@@ -55,7 +57,8 @@ def run_job(env_id: str, variant: str, seed: int, steps: int, out: Path, keep: P
         rows, done = [], 0
     config = model_settings(env_id, variant)
     algo_class = algorithm_class(variant)
-    venv = training_envs(env_id, variant, seed + 100_000 * len(rows), monitor_kwargs={"info_keywords": ("is_success",)})
+    monitor = {"info_keywords": ("is_success",)}
+    venv = training_envs(env_id, variant, seed + 100_000 * len(rows), monitor_kwargs=monitor, vec_env=vec_env)
     model_path, stats_path = folder / "model.zip", folder / "vecnormalize.pkl"
     if rows:
         env = VecNormalize.load(str(stats_path), venv) if config.normalize else venv
@@ -150,6 +153,7 @@ def run_study(
     out: Path,
     steps: int | None,
     keep: Path | None = None,
+    vec_env: str = "dummy",
 ) -> None:
     """Run every unfinished job, ``jobs`` at a time, each in its own process (``python -m benchmarks.convergence job``)."""
     todo = []
@@ -169,6 +173,7 @@ def run_study(
                    "--seed", str(seed), "--steps", str(budget), "--out", str(out)]  # fmt: skip
         if keep is not None:
             command += ["--keep-checkpoints", str(keep)]
+        command += ["--vec-env", vec_env]
         start = time.time()
         result = subprocess.run(command, capture_output=True, text=True, cwd=root)
         status = "ok" if result.returncode == 0 else f"FAILED ({result.returncode}):\n{result.stderr[-2000:]}"
