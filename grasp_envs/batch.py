@@ -92,18 +92,20 @@ class BatchVecEnv(VecEnv):
         if not (isinstance(env_class, type) and issubclass(env_class, ArmEnv)):
             raise ValueError(f"make_batch_env runs the tasks of grasp_envs (grasp_envs.ENV_IDS), got {env_id!r}")
         kwargs = {**spec.kwargs, **options}
-        task_arguments = set(inspect.signature(env_class.task_class).parameters)
-        env_arguments = set(inspect.signature(env_class).parameters) | set(_RENDER_ARGUMENTS)
-        unknown = sorted(set(kwargs) - task_arguments - env_arguments)
+        env_parameters = inspect.signature(env_class).parameters
+        task_arguments = set(inspect.signature(env_class.task_class).parameters) - {"self"}
+        unknown = sorted(set(kwargs) - set(env_parameters) - set(_RENDER_ARGUMENTS))
         if unknown:
             raise TypeError(f"{env_id} has no option {', '.join(map(repr, unknown))}")
+        # the options' defaults are the Gymnasium env class's: one place for each
+        defaults = {name: p.default for name, p in env_parameters.items() if p.default is not inspect.Parameter.empty}
+        kwargs = {**{k: v for k, v in defaults.items() if k in task_arguments}, **kwargs}
         self.env_id = env_id
         self.spec = spec
         self.task = env_class.task_class(**{k: v for k, v in kwargs.items() if k in task_arguments})
         self._render_kwargs = {k: v for k, v in kwargs.items() if k not in task_arguments}
-        camera = inspect.signature(env_class).parameters.get("default_camera_config")
-        if camera is not None and "default_camera_config" not in self._render_kwargs:
-            self._render_kwargs["default_camera_config"] = camera.default
+        if "default_camera_config" in defaults and "default_camera_config" not in self._render_kwargs:
+            self._render_kwargs["default_camera_config"] = defaults["default_camera_config"]
         self.render_mode: str | None = self._render_kwargs.get("render_mode")
         self.max_episode_steps = spec.max_episode_steps
         model = self.task.build_model()

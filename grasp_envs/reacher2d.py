@@ -18,14 +18,14 @@ class Reacher2DTask(ArmTask):
 
     def __init__(
         self,
-        xml_file: str = "reacher2d.xml",
-        frame_skip: int = 2,
-        reward_dist_weight: float = 1.0,
-        reward_control_weight: float = 1.0,
-        reward_near_weight: float = 0.5,
-        near_scale: float = 0.05,
-        reset_noise_scale: float = 0.1,
-        success_distance: float = 0.02,
+        xml_file: str,
+        frame_skip: int,
+        reward_dist_weight: float,
+        reward_control_weight: float,
+        reward_near_weight: float,
+        near_scale: float,
+        reset_noise_scale: float,
+        success_distance: float,
     ):
         check_near_bonus(reward_near_weight, near_scale)
         super().__init__(xml_file, frame_skip, observation_dim=10)

@@ -22,14 +22,14 @@ class WallReacher3DTask(Reacher3DTask):
 
     def __init__(
         self,
-        xml_file: str = "wall_reacher3d.xml",
-        frame_skip: int = 2,
-        reward_dist_weight: float = 1.0,
-        reward_control_weight: float = 1.0,
-        reward_wall_weight: float = 1.0,
-        reward_proximity_weight: float = 1.0,
-        reset_noise_scale: float = 0.1,
-        success_distance: float = 0.02,
+        xml_file: str,
+        frame_skip: int,
+        reward_dist_weight: float,
+        reward_control_weight: float,
+        reward_wall_weight: float,
+        reward_proximity_weight: float,
+        reset_noise_scale: float,
+        success_distance: float,
     ):
         super().__init__(
             xml_file, frame_skip, reward_dist_weight, reward_control_weight, 0.0, 0.05, reset_noise_scale,
