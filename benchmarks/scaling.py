@@ -24,7 +24,7 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.env_util import make_vec_env
-from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
 import grasp_envs  # noqa: F401
 from benchmarks.env_speed import time_env_step
@@ -69,6 +69,7 @@ def collection_rate(env_id: str, label: str, n_envs: int, samples: int, repeats:
     """Env steps/s of ``repeats`` collections (after one warm-up), and for the batched engine the physics' share of
     each (empty otherwise)."""
     vec_env_cls, kwargs = VEC_ENVS[label]
+    env: VecEnv
     if vec_env_cls is BatchVecEnv:
         env = make_batch_env(env_id, n_envs, seed=0, **(kwargs or {}))
         physics: PhysicsTimer | None = PhysicsTimer(env.unwrapped)  # type: ignore[arg-type]

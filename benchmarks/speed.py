@@ -119,6 +119,7 @@ BATCHED = "TRPOPlus[batch]"
 
 
 def build(name: str, env_id: str, n_envs: int, n_steps: int, seed: int, sim_threads: int = 1) -> Any:
+    env: Any
     if name == BATCHED:
         env = make_batch_env(env_id, n_envs, seed=seed, n_threads=sim_threads)
     else:

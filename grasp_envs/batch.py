@@ -10,6 +10,7 @@ definition (``grasp_envs.base.ArmTask``) that the Gymnasium env runs as a batch 
 from __future__ import annotations
 
 import inspect
+import time
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -21,7 +22,8 @@ from gymnasium.envs.registration import load_env_creator
 from gymnasium.spaces import Box
 from gymnasium.utils import seeding
 from numpy.typing import NDArray
-from stable_baselines3.common.vec_env import VecEnv, VecMonitor
+from stable_baselines3.common.monitor import Monitor, ResultsWriter
+from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 from grasp_envs.base import SIM_FIELDS, ArmEnv, ArmTask, SimArrays, info_of, infos_of
@@ -50,10 +52,18 @@ class BatchVecEnv(VecEnv):
     ``scripted_starts``: ``grasp_envs.wrappers.ScriptedStarts``' arguments (``probability``, ``steps``,
     ``hold_height``), run batched on the Grasper: a training aid, never for evaluation envs.
 
+    ``monitor``: record each episode as SB3's ``Monitor`` does inside the envs of ``make_vec_env`` (``info["episode"]``
+    with the return, the length, the time and ``info_keywords``; rows in ``monitor_file`` when given), so that the
+    VecEnv wrappers above it are the same as above a ``DummyVecEnv`` of monitored envs (``sync_envs_normalization``
+    between a training and an evaluation env needs that) and ``env_is_wrapped(Monitor)`` is true.
+
     :param env_id: a registered id of ``grasp_envs`` (``grasp_envs.ENV_IDS``)
     :param n_envs: number of simulations
     :param n_threads: threads stepping the physics (``mujoco.batch``); 0 uses every CPU
     :param scripted_starts: ``None``, or ``ScriptedStarts``' keyword arguments
+    :param monitor: record episodes as ``Monitor`` does
+    :param monitor_file: ``None``, or the CSV (``.monitor.csv`` is appended) the episodes are written to
+    :param info_keywords: info keys recorded with each episode
     :param options: the id's options to override (the task's keyword arguments), and Gymnasium's rendering
         arguments (``render_mode``, ``width``, ``height``, ``camera_id``, ``camera_name``, ``default_camera_config``)
     """
@@ -76,6 +86,11 @@ class BatchVecEnv(VecEnv):
     _episode_steps: NDArray[np.int64]
     _observations: NDArray[np.float64]
     _render_kwargs: dict[str, Any]
+    _monitor: bool
+    _info_keywords: tuple[str, ...]
+    _episode_returns: NDArray[np.float64]
+    _t_start: float
+    _results_writer: ResultsWriter | None
 
     def __init__(
         self,
@@ -83,6 +98,9 @@ class BatchVecEnv(VecEnv):
         n_envs: int,
         n_threads: int = 1,
         scripted_starts: dict[str, Any] | None = None,
+        monitor: bool = False,
+        monitor_file: str | None = None,
+        info_keywords: Iterable[str] = (),
         **options: Any,
     ):
         n_envs = _check_count("n_envs", n_envs, 1)
@@ -129,6 +147,16 @@ class BatchVecEnv(VecEnv):
         self._episode_steps = np.zeros(n_envs, dtype=np.int64)
         self._observations = np.zeros((n_envs, self.task.observation_dim))
         self._actions: NDArray[np.float64] | None = None
+        self._monitor = monitor
+        self._info_keywords = tuple(info_keywords)
+        self._episode_returns = np.zeros(n_envs)
+        self._t_start = time.time()
+        self._results_writer = None
+        if monitor_file is not None:
+            if not monitor:
+                raise ValueError("monitor_file needs monitor=True")
+            header = {"t_start": self._t_start, "env_id": env_id}
+            self._results_writer = ResultsWriter(monitor_file, header=header, extra_keys=self._info_keywords)
         self._renderers: dict[int, Any] = {}  # one per simulation, as each Gymnasium env has its own camera state
         self._render_data: mujoco.MjData | None = None
 
@@ -272,6 +300,8 @@ class BatchVecEnv(VecEnv):
         for i, env_info in enumerate(infos):  # as SB3's DummyVecEnv: on every step
             env_info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
         ids = np.flatnonzero(done)
+        if self._monitor:
+            self._record_episodes(reward, ids, infos)
         for index in ids:
             infos[index]["terminal_observation"] = observation[index].copy()
         if len(ids):
@@ -281,7 +311,26 @@ class BatchVecEnv(VecEnv):
         self._observations[:] = observation
         return self._observations.copy(), reward.astype(np.float32), done, infos
 
+    def _record_episodes(self, reward: NDArray[np.float64], ended: NDArray[np.int64], infos: list[dict[str, Any]]) -> None:
+        """``Monitor``'s bookkeeping for every env: the returns summed in float64, each ended episode in its info."""
+        self._episode_returns += reward
+        for index in ended:
+            episode = {
+                "r": round(float(self._episode_returns[index]), 6),
+                "l": int(self._episode_steps[index]),
+                "t": round(time.time() - self._t_start, 6),
+            }
+            for key in self._info_keywords:
+                episode[key] = infos[index][key]
+            if self._results_writer is not None:
+                self._results_writer.write_row(episode)
+            infos[index]["episode"] = episode
+            self._episode_returns[index] = 0.0
+
     def close(self) -> None:
+        if self._results_writer is not None:
+            self._results_writer.close()
+            self._results_writer = None
         for renderer in self._renderers.values():
             renderer.close()
         self._renderers.clear()
@@ -361,7 +410,9 @@ class BatchVecEnv(VecEnv):
     ) -> list[bool]:
         from grasp_envs.wrappers import ScriptedStarts
 
-        wrapped = self._scripted is not None and issubclass(ScriptedStarts, wrapper_class)
+        wrapped = (self._scripted is not None and issubclass(ScriptedStarts, wrapper_class)) or (
+            self._monitor and issubclass(Monitor, wrapper_class)
+        )
         return [wrapped for _ in self._indices(indices)]
 
 
@@ -374,11 +425,12 @@ def make_batch_env(
     wrapper_kwargs: dict[str, Any] | None = None,
     monitor: bool = True,
     info_keywords: Iterable[str] = ("is_success",),
+    monitor_file: str | None = None,
     **options: Any,
-) -> VecEnv:
+) -> BatchVecEnv:
     """``n_envs`` simulations of ``env_id`` in one batched SB3 ``VecEnv`` (``BatchVecEnv``), as SB3's
-    ``make_vec_env`` would make them: seeded with ``seed`` (env ``i``: ``seed + i``) and, with ``monitor``, wrapped in
-    ``VecMonitor`` (episode returns, lengths and ``info_keywords``, what ``Monitor`` records for ``make_vec_env``).
+    ``make_vec_env`` would make them: seeded with ``seed`` (env ``i``: ``seed + i``) and, with ``monitor``, recording
+    episodes as ``Monitor`` (returns, lengths and ``info_keywords`` in ``info["episode"]``; rows in ``monitor_file``).
 
     ``wrapper_class``: ``None`` or ``grasp_envs.wrappers.ScriptedStarts`` (run batched, with ``wrapper_kwargs``);
     the batch has no per-env Gymnasium envs to wrap, so any other wrapper is refused.
@@ -395,9 +447,10 @@ def make_batch_env(
         scripted = dict(wrapper_kwargs or {})
     elif wrapper_kwargs:
         raise TypeError("wrapper_kwargs given without wrapper_class")
-    env: VecEnv = BatchVecEnv(env_id, n_envs, n_threads, scripted_starts=scripted, **options)
+    env = BatchVecEnv(
+        env_id, n_envs, n_threads, scripted_starts=scripted, monitor=monitor, monitor_file=monitor_file,
+        info_keywords=info_keywords, **options,
+    )  # fmt: skip
     if seed is not None:
         env.seed(seed)
-    if monitor:
-        env = VecMonitor(env, info_keywords=tuple(info_keywords))
     return env

@@ -371,8 +371,6 @@ def batch_training_env(
     import inspect
     import os
 
-    from stable_baselines3.common.vec_env import VecMonitor
-
     from grasp_envs import make_batch_env
     from grasp_envs.wrappers import ScriptedStarts
 
@@ -390,10 +388,10 @@ def batch_training_env(
             f"--vec-env batch runs no per-env Gymnasium wrappers but ScriptedStarts (once); the env_wrapper has "
             f"{', '.join(others) or 'ScriptedStarts twice'}: use --vec-env dummy"
         )
-    env = make_batch_env(
-        env_id, n_envs, seed=seed, n_threads=n_threads, monitor=False,
+    return make_batch_env(
+        env_id, n_envs, seed=seed, n_threads=n_threads, monitor=True,
+        monitor_file=None if monitor_dir is None else os.path.join(monitor_dir, "batch"),
+        info_keywords=(monitor_kwargs or {}).get("info_keywords", ()),
         wrapper_class=ScriptedStarts if wrappers else None, wrapper_kwargs=dict(wrappers[0][1]) if wrappers else None,
         **(env_kwargs or {}),
     )  # fmt: skip
-    filename = None if monitor_dir is None else os.path.join(monitor_dir, "batch")
-    return VecMonitor(env, filename=filename, **(monitor_kwargs or {}))

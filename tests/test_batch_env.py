@@ -172,3 +172,36 @@ def test_trpo_plus_trains_on_it_with_vec_normalize_eval_callback_and_save_load(t
     observation = env.reset()
     expected = model.predict(observation, deterministic=True)[0]
     np.testing.assert_array_equal(loaded.predict(observation, deterministic=True)[0], expected)
+
+
+def test_episode_records_are_monitors_and_normalization_syncs_with_a_dummy_vec_env(tmp_path: Any) -> None:
+    """make_batch_env records episodes as Monitor inside make_vec_env's envs (same returns, lengths, is_success,
+    the same CSV columns), with no VecEnvWrapper of its own: so VecNormalize statistics sync with a DummyVecEnv
+    evaluation env (EvalCallback's sync_envs_normalization walks both wrapper stacks together)."""
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.monitor import Monitor, load_results
+    from stable_baselines3.common.vec_env import VecNormalize, sync_envs_normalization
+
+    batch = make_batch_env("Reacher2D-v1", 3, seed=7, monitor_file=str(tmp_path / "batch"))
+    dummy = make_vec_env("Reacher2D-v1", 3, seed=7, monitor_kwargs={"info_keywords": ("is_success",)})
+    assert batch.env_is_wrapped(Monitor) == dummy.env_is_wrapped(Monitor) == [True] * 3
+    batch.reset(), dummy.reset()
+    rng = np.random.default_rng(1)
+    episodes = []
+    for _ in range(120):
+        actions = rng.uniform(-1, 1, (3, 2))
+        infos, batch_infos = dummy.step(actions)[3], batch.step(actions)[3]
+        for info, batch_info in zip(infos, batch_infos, strict=True):
+            assert ("episode" in info) == ("episode" in batch_info)
+            if "episode" in info:
+                expected = {k: v for k, v in info["episode"].items() if k != "t"}
+                assert {k: v for k, v in batch_info["episode"].items() if k != "t"} == expected
+                episodes.append(expected)
+    assert len(episodes) == 6
+    batch.close()
+    records = load_results(str(tmp_path))
+    assert list(records["l"]) == [e["l"] for e in episodes] and "is_success" in records.columns
+    training, evaluation = VecNormalize(batch), VecNormalize(dummy, training=False)
+    training.obs_rms.mean[:] = 0.25
+    sync_envs_normalization(training, evaluation)
+    np.testing.assert_array_equal(evaluation.obs_rms.mean, training.obs_rms.mean)

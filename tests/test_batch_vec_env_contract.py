@@ -63,15 +63,15 @@ def make_pair() -> Iterator[Factory]:
     """``make_pair(env_id, seed=None, n_threads=1, **options)``: the batched VecEnv and DummyVecEnv, both seeded with
     ``VecEnv.seed(seed)`` (used at their next reset); both closed after the test.
 
-    The batched VecEnv is ``make_batch_env``'s, unwrapped: the episode statistics that it adds, as ``make_vec_env``'s
-    ``Monitor`` does, are not in the reference's infos (``test_constructor_seed_matches_make_vec_env`` compares them).
+    The batched VecEnv is ``make_batch_env``'s without its episode records (``monitor=False``): the reference's envs
+    have no ``Monitor`` (``test_constructor_seed_matches_make_vec_env`` compares the records).
     """
     made: list[VecEnv] = []
 
     def factory(
         env_id: str, seed: int | None = None, n_envs: int = N_ENVS, n_threads: int = 1, **options: Any
     ) -> tuple[VecEnv, DummyVecEnv]:
-        batch = make_batch_env(env_id, n_envs, n_threads=n_threads, **options).unwrapped
+        batch = make_batch_env(env_id, n_envs, n_threads=n_threads, monitor=False, **options)
         made.append(batch)
         reference = make_reference(env_id, n_envs, **options)
         made.append(reference)
@@ -139,7 +139,7 @@ def assert_steps_match(got: VecEnvStepReturn, expected: VecEnvStepReturn, where:
 def test_spaces_num_envs_and_observations(env_id: str, make_pair: Factory) -> None:
     made = make_batch_env(env_id, N_ENVS)
     made.close()
-    assert isinstance(made, VecEnv) and isinstance(made.unwrapped, BatchVecEnv)
+    assert isinstance(made, BatchVecEnv) and made.unwrapped is made
     batch, _ = make_pair(env_id, seed=0)
     single = gymnasium.make(env_id)
     assert isinstance(batch, BatchVecEnv)
