@@ -28,16 +28,24 @@ def _dummy(env_id: str, n_envs: int, seed: int, scripted: dict[str, Any] | None 
     return dummy
 
 
-def _assert_same_transitions(expected: VecEnv, batch: VecEnv, steps: int, seed: int = 0) -> int:
-    """Step both with the same random actions (beyond the action bounds, so clipping is exercised); every
-    observation, reward, done and info (terminal observations included) equal to 1e-9. Returns the episodes ended."""
-    np.testing.assert_allclose(batch.reset(), expected.reset(), rtol=0, atol=1e-9)
-    assert batch.reset_infos == expected.reset_infos
+def _record(env: VecEnv, steps: int, seed: int = 0) -> list[Any]:
+    """``env``'s reset and ``steps`` steps with random actions (beyond the action bounds, so clipping is exercised)."""
+    records: list[Any] = [(env.reset(), [dict(info) for info in env.reset_infos])]
     rng = np.random.default_rng(seed)
+    for _ in range(steps):
+        actions = rng.uniform(-1.2, 1.2, size=(env.num_envs, *env.action_space.shape))
+        records.append((actions, env.step(actions), [dict(info) for info in env.reset_infos]))
+    return records
+
+
+def _assert_replays(records: list[Any], batch: VecEnv) -> int:
+    """``batch`` given the recorded actions: every observation, reward, done and info (terminal observations
+    included) and every reset info equal to the record to 1e-9. Returns the number of episodes ended."""
+    observation, reset_infos = records[0]
+    np.testing.assert_allclose(batch.reset(), observation, rtol=0, atol=1e-9)
+    assert batch.reset_infos == reset_infos
     ended = 0
-    for t in range(steps):
-        actions = rng.uniform(-1.2, 1.2, size=(expected.num_envs, *expected.action_space.shape))
-        observation, reward, done, infos = expected.step(actions)
+    for t, (actions, (observation, reward, done, infos), reset_infos) in enumerate(records[1:]):
         batch_observation, batch_reward, batch_done, batch_infos = batch.step(actions)
         np.testing.assert_allclose(batch_observation, observation, rtol=0, atol=1e-9, err_msg=f"step {t}")
         np.testing.assert_allclose(batch_reward, reward, rtol=0, atol=1e-9, err_msg=f"step {t}")
@@ -46,9 +54,14 @@ def _assert_same_transitions(expected: VecEnv, batch: VecEnv, steps: int, seed: 
             assert set(batch_info) == set(info), f"step {t}"
             for key, value in info.items():
                 np.testing.assert_allclose(batch_info[key], value, rtol=0, atol=1e-9, err_msg=f"step {t} {key}")
+        assert batch.reset_infos == reset_infos, f"step {t}"
         ended += int(done.sum())
-    assert batch.reset_infos == expected.reset_infos
     return ended
+
+
+def _assert_same_transitions(expected: VecEnv, batch: VecEnv, steps: int, seed: int = 0) -> int:
+    """Step both with the same random actions; the batch's transitions equal ``expected``'s to 1e-9."""
+    return _assert_replays(_record(expected, steps, seed), batch)
 
 
 @pytest.mark.parametrize("env_id", grasp_envs.ENV_IDS)
@@ -58,11 +71,10 @@ def test_batch_equals_dummy_vec_env_for_every_id(env_id: str) -> None:
     limit = gym.spec(env_id).max_episode_steps
     assert limit is not None
     for n_envs, steps in ((1, limit + 5), (7, limit + 5), (64, limit + 3)):
-        dummy = _dummy(env_id, n_envs, seed=11)
+        records = _record(_dummy(env_id, n_envs, seed=11), steps)
         for n_threads in (1, 2):
             batch = make_batch_env(env_id, n_envs, seed=11, n_threads=n_threads, monitor=False)
-            dummy.seed(11)
-            assert _assert_same_transitions(dummy, batch, steps) >= n_envs
+            assert _assert_replays(records, batch) >= n_envs
 
 
 def test_batch_scripted_starts_equal_the_wrapper() -> None:
