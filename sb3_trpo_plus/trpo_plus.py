@@ -25,7 +25,7 @@ from stable_baselines3.common.distributions import Distribution, kl_divergence
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import FloatSchedule, explained_variance
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from torch import nn
 from torch.nn import functional as F
 
@@ -46,6 +46,7 @@ from sb3_trpo_plus.replay import (
     importance_weights,
     recompute_advantages,
 )
+from sb3_trpo_plus.rollouts import Normalizer, RolloutWorkers, Segment, rollout_workers
 
 SelfTRPOPlus = TypeVar("SelfTRPOPlus", bound="TRPOPlus")
 
@@ -521,8 +522,15 @@ class TRPOPlus(TRPO):
         rollout_buffer: RolloutBuffer,
         n_rollout_steps: int,
     ) -> bool:
-        """SB3's rollout collection; each step is also recorded raw for the replay memory / linear baseline."""
+        """SB3's rollout collection; each step is also recorded raw for the replay memory / linear baseline.
+
+        On a pool of rollout workers (``sb3_trpo_plus.rollouts``, bare or under one ``VecNormalize``) the workers
+        collect whole segments instead (:meth:`_collect_segments`).
+        """
         recorder = self._make_recorder(env.num_envs) if self._needs_rollout_record else None
+        pool = rollout_workers(env)
+        if pool is not None:
+            return self._collect_segments(pool[0], pool[1], callback, rollout_buffer, n_rollout_steps, recorder)
 
         def record(step: dict[str, Any]) -> None:
             self._record_step(recorder, step)
@@ -537,6 +545,99 @@ class TRPOPlus(TRPO):
                 self._episode_timesteps,
             )
         return True
+
+    def _collect_segments(
+        self,
+        pool: RolloutWorkers,
+        vec_normalize: VecNormalize | None,
+        callback: BaseCallback,
+        rollout_buffer: RolloutBuffer,
+        n_rollout_steps: int,
+        recorder: RolloutRecorder | None,
+    ) -> bool:
+        """Every worker collects ``n_rollout_steps`` steps with the current weights; then, step by step as SB3's
+        ``collect_rollouts`` would have: the ``VecNormalize`` statistics see the raw observations and rewards, the
+        callback's ``on_step`` fires (with ``new_obs``, ``rewards``, ``dones``, ``infos``, ``actions``, ``values``,
+        ``log_probs``; ``infos`` hold the dicts of the episodes that ended, ``{}`` for the others), the episode
+        statistics and the rollout buffer are filled.
+        """
+        if self.use_sde:
+            raise ValueError("rollout workers sample without gSDE: use_sde=True needs a VecEnv stepped by the learner")
+        self.policy.set_training_mode(False)
+        rollout_buffer.reset()
+        callback.on_rollout_start()
+        normalizer = Normalizer.of(vec_normalize)
+        segment = Segment.concatenate(pool.collect_segments(self.policy, n_rollout_steps, self.gamma, normalizer))  # type: ignore[arg-type]
+        n_envs = pool.num_envs
+        for t in range(n_rollout_steps):
+            dones = segment.dones[t]
+            infos: list[dict[str, Any]] = [{} for _ in range(n_envs)]
+            truncations = []  # (env, raw terminal observation, its step in the episode) for the replay record
+            for idx, info in segment.ended[t]:
+                terminal = info.get("terminal_observation")
+                if terminal is not None and info.get("TimeLimit.truncated", False):
+                    truncations.append((idx, terminal, int(segment.episode_timesteps[t, idx]) + 1))
+                if normalizer is not None and terminal is not None:  # as VecNormalize gives it to SB3
+                    info = {**info, "terminal_observation": normalizer.obs(terminal)}
+                infos[idx] = info
+            if vec_normalize is not None:
+                _update_statistics(vec_normalize, segment.raw_observations[t + 1], segment.raw_rewards[t], dones)
+            new_obs = segment.observations[t + 1] if t + 1 < n_rollout_steps else segment.last_observation
+            actions, rewards, values, log_probs = (
+                segment.actions[t],
+                segment.rewards[t],
+                segment.values[t],
+                segment.log_probs[t],
+            )
+            self.num_timesteps += n_envs
+            callback.update_locals(
+                {"new_obs": new_obs, "rewards": rewards, "dones": dones, "infos": infos, "actions": actions,
+                 "values": values, "log_probs": log_probs, "n_steps": t, "env": self.env, "rollout_buffer": rollout_buffer}
+            )  # fmt: skip
+            if not callback.on_step():
+                return False
+            self._update_info_buffer(infos, dones)
+            pool.record_episodes(segment.ended[t])
+            rollout_buffer.add(
+                segment.observations[t],
+                actions,
+                rewards,
+                segment.episode_starts[t],
+                th.as_tensor(values),
+                th.as_tensor(log_probs),
+            )
+            if recorder is not None:
+                recorder.add(
+                    segment.raw_observations[t], actions, log_probs, segment.raw_rewards[t], segment.episode_starts[t],
+                    segment.episode_timesteps[t],
+                )  # fmt: skip
+                for idx, terminal, timestep in truncations:
+                    recorder.add_truncation(idx, np.asarray(terminal), timestep)
+        last_dones = segment.dones[-1]
+        self._last_obs = segment.last_observation
+        self._last_episode_starts = last_dones
+        self._last_original_obs = segment.raw_observations[-1]
+        self._episode_timesteps = segment.episode_timesteps[-1].copy()
+        if vec_normalize is not None:
+            vec_normalize.old_obs, vec_normalize.old_reward = segment.raw_observations[-1], segment.raw_rewards[-1]
+        rollout_buffer.compute_returns_and_advantage(last_values=th.as_tensor(segment.last_values), dones=last_dones)
+        if recorder is not None:
+            self._current_rollout = recorder.finish(segment.raw_observations[-1], last_dones, segment.episode_timesteps[-1])
+        self._log_workers(pool, n_rollout_steps)
+        callback.update_locals({"new_obs": self._last_obs, "dones": last_dones, "rollout_buffer": rollout_buffer})
+        callback.on_rollout_end()
+        return True
+
+    def _log_workers(self, pool: RolloutWorkers, n_steps: int) -> None:
+        """Per-worker throughput, weight broadcast and segment transfer time of the last collection."""
+        timings = pool.last_timings
+        record = self.logger.record
+        for worker, seconds in enumerate(timings["worker_s"]):
+            record(f"workers/worker_{worker}_steps_per_s", n_steps * pool.envs_per_worker / max(seconds, 1e-9))
+        record("workers/broadcast_ms", 1e3 * timings["broadcast_s"])
+        record("workers/transfer_ms", 1e3 * timings["transfer_s"])
+        record("workers/collect_steps_per_s", n_steps * pool.num_envs / max(timings["collect_s"], 1e-9))
+        record("workers/restarts", sum(pool.restarts))
 
     def _record_step(self, recorder: RolloutRecorder | None, step: dict[str, Any]) -> None:
         """Record one step of ``collect_rollouts`` as the environment gave it (before any ``VecNormalize``).
@@ -962,6 +1063,15 @@ class TRPOPlus(TRPO):
         if model._last_obs is None:
             model._last_original_obs = None
         return model
+
+
+def _update_statistics(vec_normalize: VecNormalize, raw_obs: np.ndarray, raw_rewards: np.ndarray, dones: np.ndarray) -> None:
+    """What ``VecNormalize.step_wait`` does to its statistics for one step of raw observations and rewards."""
+    if vec_normalize.training:
+        if vec_normalize.norm_obs:
+            vec_normalize.obs_rms.update(raw_obs)  # type: ignore[union-attr]
+        vec_normalize._update_reward(raw_rewards)
+    vec_normalize.returns[dones] = 0
 
 
 def _cosine(a: th.Tensor, b: th.Tensor) -> float:

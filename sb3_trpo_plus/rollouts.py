@@ -1,0 +1,990 @@
+"""Rollout workers: whole rollout segments collected by workers that each own a group of envs and a policy copy.
+
+The thesis' parallel sampler (section 6.3): each worker holds environments and a copy of the policy, samples whole
+trajectories, and receives new weights after each update. Here a worker owns one batched VecEnv
+(``grasp_envs.make_batch_env`` for the tasks of ``grasp_envs``, a ``DummyVecEnv`` of ``gym.make`` for any other id)
+and a CPU copy of the policy. Per iteration :class:`~sb3_trpo_plus.TRPOPlus` sends every worker one *order* (the
+policy's weights and the frozen ``VecNormalize`` statistics, put once), each worker steps its envs ``n_steps`` times
+and returns its :class:`Segment`, and the learner fills the rollout buffer and updates the ``VecNormalize``
+statistics with the segments' raw observations and rewards, as SB3 would have step by step.
+
+The pools are SB3 ``VecEnv`` s, so everything that takes a VecEnv takes them (``VecNormalize``, ``EvalCallback``'s
+``sync_envs_normalization``, PPO, ``evaluate_policy``); stepped one step at a time they forward each step to the
+workers. :class:`~sb3_trpo_plus.TRPOPlus` alone collects whole segments. Three backends, one worker code:
+
+* :class:`InProcessRollouts`: the workers live in the learner's process and collect one after the other;
+* :class:`ProcessRollouts`: one local process per worker;
+* :class:`RayRollouts`: one Ray actor per worker, spread over the nodes of a Ray cluster (``pip install
+  sb3-trpo-plus[ray]``).
+
+With the same ``seed``, ``num_workers`` and ``envs_per_worker``, the three give the same segments: each worker samples
+its actions from its own torch generator (seeded from ``seed`` and the worker's index) and its env ``j`` is seeded
+``seed + worker * envs_per_worker + j``, as ``make_vec_env`` seeds env ``i`` with ``seed + i``.
+
+During a segment the observations and rewards are normalised with the statistics of the iteration's start (SB3
+updates them after every step); the statistics see every raw observation and reward of the segment afterwards.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import multiprocessing as mp
+import os
+import signal
+import socket
+import sys
+import time
+import traceback
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from typing import Any
+
+import cloudpickle
+import gymnasium as gym
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.monitor import ResultsWriter
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.utils import obs_as_tensor
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
+
+from sb3_trpo_plus.vec_env import RolloutWorkerError, _death_cause
+
+__all__ = [
+    "InProcessRollouts",
+    "Normalizer",
+    "ProcessRollouts",
+    "RayRollouts",
+    "RolloutWorker",
+    "RolloutWorkerError",
+    "RolloutWorkers",
+    "Segment",
+    "SegmentOrder",
+    "WorkerEnvs",
+]
+
+
+# ---------------------------------------------------------------------------------------------------- data records
+@dataclass(frozen=True)
+class WorkerEnvs:
+    """How a worker builds its envs (plain data: it travels to worker processes and Ray nodes).
+
+    :param env_id: a registered Gymnasium id; the tasks of ``grasp_envs`` run on the batched engine
+    :param n_envs: envs of this worker
+    :param sim_threads: threads of the batched engine's physics (``grasp_envs`` ids only)
+    :param env_kwargs: the env's constructor options
+    :param scripted_starts: ``grasp_envs.wrappers.ScriptedStarts`` options for training resets, or None
+    :param info_keywords: info keys recorded in ``info["episode"]`` at each episode's end (as SB3's ``Monitor``)
+    """
+
+    env_id: str
+    n_envs: int
+    sim_threads: int = 1
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    scripted_starts: dict[str, Any] | None = None
+    info_keywords: tuple[str, ...] = ("is_success",)
+
+    def build(self) -> VecEnv:
+        import grasp_envs
+
+        if self.env_id in grasp_envs.ENV_IDS:
+            from grasp_envs.wrappers import ScriptedStarts
+
+            return grasp_envs.make_batch_env(
+                self.env_id, self.n_envs, n_threads=self.sim_threads, info_keywords=self.info_keywords,
+                wrapper_class=ScriptedStarts if self.scripted_starts is not None else None,
+                wrapper_kwargs=self.scripted_starts, **self.env_kwargs,
+            )  # fmt: skip
+        if self.scripted_starts is not None:
+            raise ValueError(f"scripted starts run on the tasks of grasp_envs only, not on {self.env_id!r}")
+        from stable_baselines3.common.env_util import make_vec_env
+
+        return make_vec_env(
+            self.env_id, self.n_envs, env_kwargs=self.env_kwargs, monitor_kwargs={"info_keywords": self.info_keywords}
+        )
+
+
+@dataclass(frozen=True)
+class Normalizer:
+    """A frozen copy of a ``VecNormalize``'s statistics and settings: its ``normalize_obs`` / ``normalize_reward``."""
+
+    obs_mean: np.ndarray
+    obs_var: np.ndarray
+    ret_var: float
+    epsilon: float
+    clip_obs: float
+    clip_reward: float
+    norm_obs: bool
+    norm_reward: bool
+
+    @classmethod
+    def of(cls, vec_normalize: VecNormalize | None) -> Normalizer | None:
+        if vec_normalize is None:
+            return None
+        if isinstance(vec_normalize.obs_rms, dict):
+            raise ValueError("rollout workers normalise array observations; this VecNormalize has dict statistics")
+        return cls(
+            obs_mean=vec_normalize.obs_rms.mean.copy(), obs_var=vec_normalize.obs_rms.var.copy(),
+            ret_var=float(vec_normalize.ret_rms.var), epsilon=float(vec_normalize.epsilon),
+            clip_obs=float(vec_normalize.clip_obs), clip_reward=float(vec_normalize.clip_reward),
+            norm_obs=bool(vec_normalize.norm_obs), norm_reward=bool(vec_normalize.norm_reward),
+        )  # fmt: skip
+
+    def obs(self, observations: np.ndarray) -> np.ndarray:
+        if not self.norm_obs:
+            return observations
+        normalized = np.clip(
+            (observations - self.obs_mean) / np.sqrt(self.obs_var + self.epsilon), -self.clip_obs, self.clip_obs
+        )
+        return normalized.astype(np.float32)
+
+    def reward(self, rewards: np.ndarray) -> np.ndarray:
+        if self.norm_reward:
+            rewards = np.clip(rewards / np.sqrt(self.ret_var + self.epsilon), -self.clip_reward, self.clip_reward)
+        return rewards.astype(np.float32)
+
+
+@dataclass(frozen=True)
+class SegmentOrder:
+    """What the learner sends every worker once per iteration.
+
+    :param n_steps: steps to collect
+    :param gamma: discount, for bootstrapping time-limit truncations with the value function (as SB3)
+    :param weights: the policy's ``state_dict`` (CPU tensors)
+    :param normalizer: the ``VecNormalize`` statistics of the iteration's start, or None
+    """
+
+    n_steps: int
+    gamma: float
+    weights: dict[str, th.Tensor]
+    normalizer: Normalizer | None
+
+
+@dataclass
+class Segment:
+    """One worker's ``n_steps`` x ``n_envs`` transitions; arrays are indexed ``[step, env]``.
+
+    :param observations: the policy's inputs (normalised with the order's statistics)
+    :param raw_observations: the envs' observations, ``n_steps + 1`` of them (the last: after the last step)
+    :param last_observation: the policy's input after the last step
+    :param actions: the policy's actions (before clipping to the action space)
+    :param rewards: the rewards the rollout buffer takes (normalised, time-limit truncations bootstrapped)
+    :param raw_rewards: the envs' rewards
+    :param episode_starts: whether each step's observation starts an episode
+    :param dones: whether each step ended an episode
+    :param episode_timesteps: each step's index inside its episode, ``n_steps + 1`` rows
+    :param values: the value estimates of ``observations``
+    :param log_probs: the log-probabilities of ``actions``
+    :param last_values: the value estimates of ``last_observation``
+    :param ended: per step, ``(env, info)`` of each episode that ended (its raw ``terminal_observation`` included)
+    :param seconds: the worker's time for the segment
+    """
+
+    observations: np.ndarray
+    raw_observations: np.ndarray
+    last_observation: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+    raw_rewards: np.ndarray
+    episode_starts: np.ndarray
+    dones: np.ndarray
+    episode_timesteps: np.ndarray
+    values: np.ndarray
+    log_probs: np.ndarray
+    last_values: np.ndarray
+    ended: list[list[tuple[int, dict[str, Any]]]]
+    seconds: float
+
+    @classmethod
+    def concatenate(cls, segments: Sequence[Segment]) -> Segment:
+        """The segments of workers ``0, 1, ...`` side by side: one segment over all their envs."""
+
+        def cat(name: str) -> np.ndarray:
+            return np.concatenate([getattr(segment, name) for segment in segments], axis=1)
+
+        offsets = np.cumsum([0] + [segment.dones.shape[1] for segment in segments])
+        n_steps = segments[0].dones.shape[0]
+        ended = [
+            [
+                (int(offset) + env, info)
+                for segment, offset in zip(segments, offsets[:-1], strict=True)
+                for env, info in segment.ended[t]
+            ]
+            for t in range(n_steps)
+        ]
+        return cls(
+            observations=cat("observations"), raw_observations=cat("raw_observations"),
+            last_observation=np.concatenate([s.last_observation for s in segments]), actions=cat("actions"),
+            rewards=cat("rewards"), raw_rewards=cat("raw_rewards"), episode_starts=cat("episode_starts"), dones=cat("dones"),
+            episode_timesteps=cat("episode_timesteps"), values=cat("values"), log_probs=cat("log_probs"),
+            last_values=np.concatenate([s.last_values for s in segments]), ended=ended,
+            seconds=max(s.seconds for s in segments),
+        )  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------------------------- the worker
+class RolloutWorker:
+    """A group of envs and a CPU copy of the policy; runs in the learner, a worker process or a Ray actor.
+
+    :param index: the worker's index in its pool
+    :param envs: how to build its envs
+    :param torch_seed: seed of the generator its actions are sampled from (None: from the operating system)
+    """
+
+    def __init__(self, index: int, envs: WorkerEnvs, torch_seed: int | None):
+        self.index = index
+        self.envs = envs
+        self.env = envs.build()
+        self.policy: ActorCriticPolicy | None = None
+        generator = th.Generator()
+        if torch_seed is None:
+            generator.seed()
+        else:
+            generator.manual_seed(torch_seed)
+        self._rng_state = generator.get_state()
+        n = self.env.num_envs
+        self._raw_obs: np.ndarray | None = None
+        self._episode_starts = np.ones(n, dtype=bool)
+        self._timesteps = np.zeros(n, dtype=np.int64)
+
+    @contextlib.contextmanager
+    def _own_generator(self) -> Iterator[None]:
+        """Sample from this worker's generator (SB3's policies draw from torch's global one); the caller's is kept."""
+        caller = th.get_rng_state()
+        th.set_rng_state(self._rng_state)
+        try:
+            yield
+        finally:
+            self._rng_state = th.get_rng_state()
+            th.set_rng_state(caller)
+
+    # -- set-up and the per-step VecEnv face
+    def describe(self) -> dict[str, Any]:
+        """The worker's spaces, process and place (its Ray node id inside a Ray cluster, else None)."""
+        env = self.env
+        ray = sys.modules.get("ray")  # imported in a Ray worker; never imported here for the other backends
+        node = ray.get_runtime_context().get_node_id() if ray is not None and ray.is_initialized() else None
+        return {
+            "node": node,
+            "observation_space": env.observation_space, "action_space": env.action_space, "render_mode": env.render_mode,
+            "pid": os.getpid(), "host": socket.gethostname(), "n_envs": env.num_envs,
+        }  # fmt: skip
+
+    def set_policy(self, blueprint: bytes) -> None:
+        """The policy to sample from, as ``cloudpickle`` bytes of a CPU copy (sent once; weights come with orders)."""
+        self.policy = cloudpickle.loads(blueprint)
+        assert self.policy is not None
+        self.policy.set_training_mode(False)
+
+    def reset(self, seeds: Sequence[int | None] | None, options: Sequence[dict[str, Any]] | None) -> tuple[np.ndarray, list]:
+        if seeds is not None:
+            self.env._seeds = list(seeds)
+        if options is not None:
+            self.env._options = list(options)
+        obs = self.env.reset()
+        assert isinstance(obs, np.ndarray)
+        self._raw_obs = obs
+        self._episode_starts[:] = True
+        self._timesteps[:] = 0
+        return obs, list(self.env.reset_infos)
+
+    def step(self, actions: np.ndarray) -> VecEnvStepReturn:
+        obs, rewards, dones, infos = self.env.step(actions)
+        self._advance(obs, dones)
+        return obs, rewards, dones, infos
+
+    def _advance(self, obs: Any, dones: np.ndarray) -> None:
+        self._raw_obs = obs
+        self._timesteps += 1
+        self._timesteps[dones] = 0
+        self._episode_starts = np.asarray(dones, dtype=bool).copy()
+
+    def call(self, method: str, args: tuple[Any, ...] = (), kwargs: dict[str, Any] | None = None) -> Any:
+        """One of the VecEnv's ``get_attr``, ``set_attr``, ``env_method``, ``env_is_wrapped``, ``get_images``."""
+        if method not in {"get_attr", "set_attr", "env_method", "env_is_wrapped", "get_images"}:
+            raise ValueError(f"rollout worker: {method!r} is no VecEnv query")
+        return getattr(self.env, method)(*args, **(kwargs or {}))
+
+    def close(self) -> None:
+        self.env.close()
+
+    # -- whole segments
+    def collect(self, order: SegmentOrder) -> Segment:
+        """Step every env ``order.n_steps`` times with the order's policy weights: SB3's ``collect_rollouts`` loop."""
+        start = time.perf_counter()
+        if self.policy is None:
+            raise RuntimeError(f"rollout worker {self.index}: collect before set_policy")
+        if self._raw_obs is None:
+            raise RuntimeError(f"rollout worker {self.index}: collect before reset")
+        policy = self.policy
+        policy.load_state_dict(order.weights)
+        policy.set_training_mode(False)
+        norm, env = order.normalizer, self.env
+        n_steps, n_envs = order.n_steps, env.num_envs
+        action_space = env.action_space
+        raw = self._raw_obs
+        raw_observations = np.zeros((n_steps + 1, *raw.shape), dtype=raw.dtype)
+        observations: np.ndarray | None = None
+        actions_out: np.ndarray | None = None
+        rewards_out = np.zeros((n_steps, n_envs), dtype=np.float32)
+        raw_rewards = np.zeros((n_steps, n_envs), dtype=np.float32)
+        episode_starts = np.zeros((n_steps, n_envs), dtype=np.float32)
+        dones_out = np.zeros((n_steps, n_envs), dtype=bool)
+        episode_timesteps = np.zeros((n_steps + 1, n_envs), dtype=np.int64)
+        values_out = np.zeros((n_steps, n_envs), dtype=np.float32)
+        log_probs_out = np.zeros((n_steps, n_envs), dtype=np.float32)
+        ended: list[list[tuple[int, dict[str, Any]]]] = []
+        obs = norm.obs(raw) if norm is not None else raw
+        with self._own_generator():
+            for t in range(n_steps):
+                raw_observations[t] = raw
+                episode_starts[t] = self._episode_starts
+                episode_timesteps[t] = self._timesteps
+                with th.no_grad():
+                    actions_t, values, log_probs = policy(obs_as_tensor(obs, policy.device))
+                actions = actions_t.cpu().numpy()
+                clipped = actions
+                if isinstance(action_space, spaces.Box):
+                    clipped = (
+                        policy.unscale_action(clipped)
+                        if policy.squash_output
+                        else np.clip(actions, action_space.low, action_space.high)
+                    )
+                new_raw, raw_reward, dones, infos = env.step(clipped)
+                assert isinstance(new_raw, np.ndarray)
+                rewards = norm.reward(raw_reward) if norm is not None else np.array(raw_reward, dtype=np.float32)
+                if isinstance(action_space, spaces.Discrete):
+                    actions = actions.reshape(-1, 1)
+                done_infos: list[tuple[int, dict[str, Any]]] = []
+                for idx in np.flatnonzero(dones):
+                    info = infos[idx]
+                    terminal = info.get("terminal_observation")
+                    if terminal is not None and info.get("TimeLimit.truncated", False):
+                        terminal_input = norm.obs(terminal) if norm is not None else terminal
+                        terminal_obs = policy.obs_to_tensor(terminal_input)[0]
+                        with th.no_grad():
+                            terminal_value = policy.predict_values(terminal_obs)[0]  # type: ignore[arg-type]
+                        rewards[idx] += order.gamma * terminal_value
+                    done_infos.append((int(idx), info))
+                if observations is None:
+                    observations = np.zeros((n_steps, *obs.shape), dtype=np.float32)
+                    actions_out = np.zeros((n_steps, *actions.shape), dtype=actions.dtype)
+                assert actions_out is not None
+                observations[t] = obs
+                actions_out[t] = actions
+                rewards_out[t] = rewards
+                raw_rewards[t] = raw_reward
+                dones_out[t] = dones
+                values_out[t] = values.cpu().numpy().flatten()
+                log_probs_out[t] = log_probs.cpu().numpy()
+                ended.append(done_infos)
+                self._advance(new_raw, dones)
+                raw = new_raw
+                obs = norm.obs(raw) if norm is not None else raw
+            with th.no_grad():
+                last_values = policy.predict_values(obs_as_tensor(obs, policy.device)).cpu().numpy().flatten()  # type: ignore[arg-type]
+        raw_observations[n_steps] = raw
+        episode_timesteps[n_steps] = self._timesteps
+        assert observations is not None and actions_out is not None
+        return Segment(
+            observations=observations, raw_observations=raw_observations, last_observation=np.array(obs, dtype=np.float32),
+            actions=actions_out, rewards=rewards_out, raw_rewards=raw_rewards, episode_starts=episode_starts,
+            dones=dones_out, episode_timesteps=episode_timesteps, values=values_out, log_probs=log_probs_out,
+            last_values=last_values.astype(np.float32), ended=ended, seconds=time.perf_counter() - start,
+        )  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------------------------- backends
+class _WorkerDied(Exception):
+    """A worker's process or node is gone (the pool may restart it)."""
+
+    def __init__(self, cause: str):
+        super().__init__(cause)
+        self.cause = cause
+
+
+class _Backend:
+    """Starts workers and runs their methods; ``submit`` returns a handle, ``result`` its value."""
+
+    def start(self, index: int, envs: WorkerEnvs, torch_seed: int | None) -> None:
+        raise NotImplementedError
+
+    def submit(self, index: int, method: str, *args: Any) -> Any:
+        raise NotImplementedError
+
+    def result(self, index: int, handle: Any) -> Any:
+        raise NotImplementedError
+
+    def share(self, value: Any) -> Any:
+        """``value`` as the workers' methods take it (Ray puts it in the object store once)."""
+        return value
+
+    def stop(self, index: int) -> None:
+        raise NotImplementedError
+
+
+class _InProcessBackend(_Backend):
+    def __init__(self) -> None:
+        self.workers: dict[int, RolloutWorker] = {}
+
+    def start(self, index: int, envs: WorkerEnvs, torch_seed: int | None) -> None:
+        self.workers[index] = RolloutWorker(index, envs, torch_seed)
+
+    def submit(self, index: int, method: str, *args: Any) -> Any:
+        try:
+            return True, getattr(self.workers[index], method)(*args)
+        except Exception as error:  # raised by result(), as the other backends raise a worker's error when asked
+            return False, error
+
+    def result(self, index: int, handle: Any) -> Any:
+        ok, value = handle
+        if not ok:
+            raise value
+        return value
+
+    def stop(self, index: int) -> None:
+        worker = self.workers.pop(index, None)
+        if worker is not None:
+            worker.close()
+
+
+def _process_main(remote: Connection, parent_remote: Connection, index: int, envs: WorkerEnvs, torch_seed: int | None) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the learner's to handle: it stops and closes us
+    parent_remote.close()
+    try:
+        worker = RolloutWorker(index, envs, torch_seed)
+    except Exception:
+        remote.send((False, traceback.format_exc()))
+        return
+    remote.send((True, None))
+    while True:
+        try:
+            method, args = remote.recv()
+        except (EOFError, KeyboardInterrupt):
+            break
+        if method == "stop":
+            worker.close()
+            break
+        try:
+            remote.send((True, getattr(worker, method)(*args)))
+        except Exception:
+            remote.send((False, traceback.format_exc()))
+
+
+class _ProcessBackend(_Backend):
+    def __init__(self, start_method: str | None) -> None:
+        if start_method is None:
+            start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
+        self.context = mp.get_context(start_method)
+        self.remotes: dict[int, Connection] = {}
+        self.processes: dict[int, Any] = {}
+
+    def start(self, index: int, envs: WorkerEnvs, torch_seed: int | None) -> None:
+        remote, work_remote = self.context.Pipe()
+        process = self.context.Process(  # type: ignore[attr-defined]
+            target=_process_main, args=(work_remote, remote, index, envs, torch_seed), daemon=True
+        )
+        process.start()
+        work_remote.close()
+        self.remotes[index], self.processes[index] = remote, process
+        self.result(index, None)  # the worker's envs are built (or its error is raised)
+
+    def submit(self, index: int, method: str, *args: Any) -> Any:
+        try:
+            self.remotes[index].send((method, args))
+        except (ConnectionError, EOFError) as error:
+            raise _WorkerDied(f"pid {self.processes[index].pid} {_death_cause(self.processes[index])}") from error
+        return None
+
+    def result(self, index: int, handle: Any) -> Any:
+        try:
+            ok, value = self.remotes[index].recv()
+        except (ConnectionError, EOFError) as error:
+            raise _WorkerDied(f"pid {self.processes[index].pid} {_death_cause(self.processes[index])}") from error
+        if not ok:
+            raise RemoteTraceback(value)
+        return value
+
+    def stop(self, index: int) -> None:
+        remote, process = self.remotes.pop(index, None), self.processes.pop(index, None)
+        if remote is not None:
+            with contextlib.suppress(ConnectionError, EOFError, OSError):
+                remote.send(("stop", ()))
+            remote.close()
+        if process is not None:
+            process.join(timeout=5)
+            if process.is_alive():
+                process.kill()
+                process.join()
+
+
+class RemoteTraceback(Exception):
+    """An exception raised inside a worker; its message is the worker's traceback."""
+
+
+class _RayBackend(_Backend):
+    def __init__(self, cpus_per_worker: float, placement_timeout: float) -> None:
+        import ray
+
+        self.ray = ray
+        self.cpus_per_worker = cpus_per_worker
+        self.placement_timeout = placement_timeout
+        self.actor_class = ray.remote(RolloutWorker)
+        self.actors: dict[int, Any] = {}
+
+    def start(self, index: int, envs: WorkerEnvs, torch_seed: int | None) -> None:
+        actor = self.actor_class.options(  # type: ignore[attr-defined]
+            num_cpus=self.cpus_per_worker, scheduling_strategy="SPREAD", max_restarts=0, max_task_retries=0
+        ).remote(index, envs, torch_seed)
+        self.actors[index] = actor
+        ready = actor.describe.remote()  # type: ignore[attr-defined]
+        done, _ = self.ray.wait([ready], timeout=self.placement_timeout)
+        if not done:
+            self.stop(index)
+            raise RolloutWorkerError(
+                f"RayRollouts worker {index} ({envs.n_envs} x {envs.env_id}) was not placed within "
+                f"{self.placement_timeout:.0f} s: no node of the cluster has {self.cpus_per_worker} CPU free "
+                f"(cluster resources: {self.ray.available_resources()})"
+            )
+        self.result(index, ready)
+
+    def submit(self, index: int, method: str, *args: Any) -> Any:
+        return getattr(self.actors[index], method).remote(*args)
+
+    def share(self, value: Any) -> Any:
+        return self.ray.put(value)
+
+    def result(self, index: int, handle: Any) -> Any:
+        from ray import exceptions
+
+        try:
+            return self.ray.get(handle)
+        except exceptions.RayTaskError as error:
+            raise RemoteTraceback(str(error)) from None
+        except (exceptions.RayActorError, exceptions.NodeDiedError, exceptions.ObjectLostError) as error:
+            raise _WorkerDied(f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}") from error
+
+    def stop(self, index: int) -> None:
+        actor = self.actors.pop(index, None)
+        if actor is not None:
+            with contextlib.suppress(Exception):
+                self.ray.get(actor.close.remote(), timeout=10)
+            with contextlib.suppress(Exception):
+                self.ray.kill(actor)
+
+    def pid(self, index: int) -> int:
+        return int(self.ray.get(self.actors[index].describe.remote())["pid"])
+
+
+# ---------------------------------------------------------------------------------------------------- the pools
+class RolloutWorkers(VecEnv):
+    """``num_workers`` workers with ``envs_per_worker`` envs of ``env_id`` each: one SB3 ``VecEnv`` of
+    ``num_workers * envs_per_worker`` envs (worker ``w`` steps envs ``w * envs_per_worker`` to
+    ``(w + 1) * envs_per_worker - 1``). Use a subclass: :class:`InProcessRollouts`, :class:`ProcessRollouts`,
+    :class:`RayRollouts`.
+
+    :param env_id: a registered Gymnasium id
+    :param num_workers: number of workers
+    :param envs_per_worker: envs of each worker (one batched VecEnv per worker for the tasks of ``grasp_envs``)
+    :param seed: env ``i`` is seeded ``seed + i`` at the first reset; worker ``w`` samples its actions from a torch
+        generator seeded from ``(seed, w)``. None: unseeded
+    :param sim_threads: threads of each worker's batched physics
+    :param env_kwargs: the env's constructor options
+    :param scripted_starts: ``grasp_envs.wrappers.ScriptedStarts`` options (the grasper's training resets), or None
+    :param info_keywords: info keys recorded in ``info["episode"]`` (as SB3's ``Monitor``)
+    :param monitor_file: write every finished episode there, as SB3's ``Monitor`` / ``VecMonitor`` do (learner side)
+    :param max_restarts: how often each worker may be restarted after its process or node died during a segment
+        (the segment is then collected again by the new worker, whose envs start new episodes); beyond that, or
+        when a worker dies while stepped one step at a time, :class:`RolloutWorkerError` names it
+    """
+
+    backend_name = "workers"
+
+    def __init__(
+        self,
+        env_id: str,
+        num_workers: int,
+        envs_per_worker: int,
+        *,
+        seed: int | None = None,
+        sim_threads: int = 1,
+        env_kwargs: dict[str, Any] | None = None,
+        scripted_starts: dict[str, Any] | None = None,
+        info_keywords: Sequence[str] = ("is_success",),
+        monitor_file: str | None = None,
+        max_restarts: int = 0,
+    ):
+        for name, value, minimum in (
+            ("num_workers", num_workers, 1), ("envs_per_worker", envs_per_worker, 1), ("sim_threads", sim_threads, 0),
+            ("max_restarts", max_restarts, 0),
+        ):  # fmt: skip
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
+                raise ValueError(f"{type(self).__name__}: `{name}` must be an int >= {minimum}, got {value!r}")
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer)):
+            raise ValueError(f"{type(self).__name__}: `seed` must be an int or None, got {seed!r}")
+        if not isinstance(env_id, str):
+            raise ValueError(f"{type(self).__name__}: `env_id` must be a registered Gymnasium id, got {env_id!r}")
+        import grasp_envs  # noqa: F401  (registers our ids)
+
+        gym.spec(env_id)  # an unknown id raises gymnasium's error naming it, before any worker starts
+        self.env_id = env_id
+        self.num_workers, self.envs_per_worker = int(num_workers), int(envs_per_worker)
+        self.max_restarts = int(max_restarts)
+        self.worker_envs = WorkerEnvs(
+            env_id, self.envs_per_worker, int(sim_threads), dict(env_kwargs or {}),
+            None if scripted_starts is None else dict(scripted_starts), tuple(info_keywords),
+        )  # fmt: skip
+        self._base_seed = None if seed is None else int(seed)
+        self.restarts = [0] * self.num_workers
+        self.closed = False
+        self._backend = self._make_backend()
+        self._blueprint: bytes | None = None
+        self._blueprint_of: int | None = None
+        self._actions: np.ndarray | None = None
+        self.last_timings: dict[str, Any] = {}
+        self._monitor = None if monitor_file is None else _MonitorWriter(monitor_file, env_id, tuple(info_keywords))
+        started: list[int] = []
+        try:
+            for worker in range(self.num_workers):
+                try:
+                    self._backend.start(worker, self.worker_envs, self._torch_seed(worker))
+                except (_WorkerDied, RemoteTraceback) as error:
+                    raise self._error(worker, error) from None
+                started.append(worker)
+            descriptions = self._all("describe")
+        except BaseException:
+            for worker in started:
+                self._backend.stop(worker)
+            raise
+        first = descriptions[0]
+        self.render_mode = first["render_mode"]
+        self.workers = [{key: d[key] for key in ("pid", "host", "node")} for d in descriptions]
+        super().__init__(self.num_workers * self.envs_per_worker, first["observation_space"], first["action_space"])
+        if seed is not None:
+            self.seed(int(seed))
+
+    # -- backend plumbing
+    def _make_backend(self) -> _Backend:
+        raise NotImplementedError(f"{type(self).__name__} is abstract: use InProcessRollouts, ProcessRollouts or RayRollouts")
+
+    def _torch_seed(self, worker: int) -> int | None:
+        if self._base_seed is None:
+            return None
+        return int(np.random.SeedSequence([self._base_seed, worker]).generate_state(1)[0])
+
+    def _describe_worker(self, worker: int) -> str:
+        first = worker * self.envs_per_worker
+        where = ""
+        if hasattr(self, "workers") and worker < len(self.workers):
+            where = f" (pid {self.workers[worker]['pid']} on {self.workers[worker]['host']})"
+        return (
+            f"{type(self).__name__} worker {worker}{where} stepping envs {first}-{first + self.envs_per_worker - 1} "
+            f"({self.env_id})"
+        )
+
+    def _error(self, worker: int, error: BaseException) -> RolloutWorkerError:
+        if isinstance(error, _WorkerDied):
+            return RolloutWorkerError(f"{self._describe_worker(worker)} died: {error.cause}")
+        return RolloutWorkerError(f"{self._describe_worker(worker)} raised an error; its traceback:\n{error}")
+
+    def _gather(self, worker_handles: Sequence[tuple[int, Any]]) -> list[Any]:
+        """Every handle's result; the first failure raises :class:`RolloutWorkerError` once all have answered."""
+        results: list[Any] = []
+        failure: RolloutWorkerError | None = None
+        for worker, handle in worker_handles:
+            try:
+                results.append(self._backend.result(worker, handle))
+            except (_WorkerDied, RemoteTraceback, Exception) as error:
+                results.append(None)
+                if failure is None:
+                    failure = error if isinstance(error, RolloutWorkerError) else self._error(worker, error)
+                    failure.__cause__ = error
+        if failure is not None:
+            raise failure
+        return results
+
+    def _all(self, method: str, *args: Any) -> list[Any]:
+        handles = []
+        for worker in range(self.num_workers):
+            try:
+                handles.append((worker, self._backend.submit(worker, method, *args)))
+            except _WorkerDied as error:
+                raise self._error(worker, error) from error
+        return self._gather(handles)
+
+    def _each(self, method: str, args: Sequence[tuple[Any, ...]]) -> list[Any]:
+        handles = []
+        for worker, worker_args in enumerate(args):
+            try:
+                handles.append((worker, self._backend.submit(worker, method, *worker_args)))
+            except _WorkerDied as error:
+                raise self._error(worker, error) from error
+        return self._gather(handles)
+
+    def _slice(self, values: Sequence[Any] | np.ndarray, worker: int) -> Any:
+        return values[worker * self.envs_per_worker : (worker + 1) * self.envs_per_worker]
+
+    # -- segments (TRPOPlus' collection)
+    def _ensure_policy(self, policy: ActorCriticPolicy) -> None:
+        if self._blueprint_of == id(policy) and self._blueprint is not None:
+            return
+        buffer = io.BytesIO()
+        blueprint = _cpu_copy(policy)
+        cloudpickle.dump(blueprint, buffer)
+        self._blueprint, self._blueprint_of = buffer.getvalue(), id(policy)
+        self._all("set_policy", self._blueprint)
+
+    def collect_segments(
+        self, policy: ActorCriticPolicy, n_steps: int, gamma: float, normalizer: Normalizer | None
+    ) -> list[Segment]:
+        """One segment of ``n_steps`` from every worker, in worker order. A worker that died is restarted (up to
+        ``max_restarts`` times) and its segment collected again."""
+        self._ensure_policy(policy)
+        start = time.perf_counter()
+        weights = {name: tensor.detach().cpu().clone() for name, tensor in policy.state_dict().items()}
+        order = self._backend.share(SegmentOrder(n_steps, float(gamma), weights, normalizer))
+        broadcast = time.perf_counter() - start
+        handles: dict[int, Any] = {
+            worker: self._submit_or_restart(worker, "collect", order) for worker in range(self.num_workers)
+        }
+        segments: list[Segment | None] = [None] * self.num_workers
+        for worker in range(self.num_workers):
+            while segments[worker] is None:
+                try:
+                    segments[worker] = self._backend.result(worker, handles[worker])
+                except _WorkerDied as error:
+                    self._restart(worker, error)
+                    handles[worker] = self._submit_or_restart(worker, "collect", order)
+                except RemoteTraceback as error:
+                    raise self._error(worker, error) from None
+        wall = time.perf_counter() - start
+        done = [segment for segment in segments if segment is not None]
+        self.last_timings = {
+            "broadcast_s": broadcast,
+            "collect_s": wall - broadcast,
+            "worker_s": [segment.seconds for segment in done],
+            "transfer_s": max(wall - broadcast - max(segment.seconds for segment in done), 0.0),
+        }
+        return done
+
+    def _submit_or_restart(self, worker: int, method: str, *args: Any) -> Any:
+        while True:
+            try:
+                return self._backend.submit(worker, method, *args)
+            except _WorkerDied as error:
+                self._restart(worker, error)
+
+    def _restart(self, worker: int, error: _WorkerDied) -> None:
+        """Replace a dead worker by a new one with the same envs, policy and seeds shifted by its restarts."""
+        if self.restarts[worker] >= self.max_restarts:
+            raise RolloutWorkerError(
+                f"{self._describe_worker(worker)} died: {error.cause} (restarted {self.restarts[worker]} times of "
+                f"max_restarts={self.max_restarts})"
+            ) from error
+        self.restarts[worker] += 1
+        self._backend.stop(worker)
+        self._backend.start(worker, self.worker_envs, self._torch_seed(worker + self.num_workers * self.restarts[worker]))
+        (description,) = self._gather([(worker, self._backend.submit(worker, "describe"))])
+        self.workers[worker] = {key: description[key] for key in ("pid", "host", "node")}
+        if self._blueprint is not None:
+            self._gather([(worker, self._backend.submit(worker, "set_policy", self._blueprint))])
+        seeds = None
+        if self._base_seed is not None:
+            shift = self.num_envs * self.restarts[worker]
+            first = self._base_seed + worker * self.envs_per_worker + shift
+            seeds = list(range(first, first + self.envs_per_worker))
+        self._gather([(worker, self._backend.submit(worker, "reset", seeds, None))])
+
+    def record_episodes(self, ended: Sequence[tuple[int, dict[str, Any]]]) -> None:
+        """Write the episodes of one step's ``(env, info)`` to ``monitor_file`` (the segment path calls it per step)."""
+        if self._monitor is not None:
+            self._monitor.write(info for _, info in ended)
+
+    # -- VecEnv
+    def reset(self) -> VecEnvObs:
+        seeds, options = list(self._seeds), list(self._options)
+        results = self._each("reset", [(self._slice(seeds, w), self._slice(options, w)) for w in range(self.num_workers)])
+        self._reset_seeds()
+        self._reset_options()
+        self.reset_infos = [info for _, infos in results for info in infos]
+        return np.concatenate([obs for obs, _ in results])
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        actions, self._actions = self._actions, None
+        if actions is None:
+            raise RuntimeError("step_wait called without step_async")
+        results = self._each("step", [(self._slice(actions, w),) for w in range(self.num_workers)])
+        infos = [info for _, _, _, worker_infos in results for info in worker_infos]
+        dones = np.concatenate([dones for _, _, dones, _ in results])
+        if self._monitor is not None:
+            self._monitor.write(infos[i] for i in np.flatnonzero(dones))
+        return (
+            np.concatenate([obs for obs, _, _, _ in results]),
+            np.concatenate([rewards for _, rewards, _, _ in results]),
+            dones,
+            infos,
+        )
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        for worker in range(self.num_workers):
+            self._backend.stop(worker)
+        if self._monitor is not None:
+            self._monitor.close()
+
+    def __del__(self) -> None:
+        with contextlib.suppress(Exception):
+            if not self.closed:
+                self.close()
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        return [image for images in self._all("call", "get_images") for image in images]
+
+    def _route(self, indices: VecEnvIndices) -> list[tuple[int, list[int]]]:
+        groups: dict[int, list[int]] = {}
+        for index in self._get_indices(indices):
+            groups.setdefault(index // self.envs_per_worker, []).append(index % self.envs_per_worker)
+        return sorted(groups.items())
+
+    def _ask(self, command: str, indices: VecEnvIndices, *args: Any) -> list[Any]:
+        routes = self._route(indices)
+        handles = []
+        for worker, local in routes:
+            handles.append((worker, self._backend.submit(worker, "call", command, (*args, local))))
+        return [value for values in self._gather(handles) for value in (values or [])]
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        return self._ask("get_attr", indices, attr_name)
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        self._ask("set_attr", indices, attr_name, value)
+
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
+    ) -> list[Any]:
+        handles = [
+            (
+                worker,
+                self._backend.submit(
+                    worker, "call", "env_method", (method_name, *method_args), {"indices": local, **method_kwargs}
+                ),
+            )
+            for worker, local in self._route(indices)
+        ]
+        return [value for values in self._gather(handles) for value in values]
+
+    def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
+        return self._ask("env_is_wrapped", indices, wrapper_class)
+
+
+class InProcessRollouts(RolloutWorkers):
+    """Rollout workers in the learner's process, collecting one after the other (the reference of the others)."""
+
+    backend_name = "in-process"
+
+    def _make_backend(self) -> _Backend:
+        return _InProcessBackend()
+
+
+class ProcessRollouts(RolloutWorkers):
+    """One local process per rollout worker. ``start_method``: as SB3's ``SubprocVecEnv`` (default forkserver)."""
+
+    backend_name = "process"
+
+    def __init__(self, env_id: str, num_workers: int, envs_per_worker: int, *, start_method: str | None = None, **kwargs: Any):
+        self._start_method = start_method
+        super().__init__(env_id, num_workers, envs_per_worker, **kwargs)
+
+    def _make_backend(self) -> _Backend:
+        return _ProcessBackend(self._start_method)
+
+
+class RayRollouts(RolloutWorkers):
+    """One Ray actor per rollout worker, spread over the cluster's nodes (``SPREAD`` scheduling).
+
+    Connects to the running Ray cluster (``address``, else the ``RAY_ADDRESS`` environment variable) or, when there
+    is none, starts Ray on this machine; a Ray session that is already initialised is used as it is.
+
+    :param cpus_per_worker: CPUs each actor reserves (Ray places a worker on a node with that many free)
+    :param max_restarts: restarts of each worker after its process or node died (default 3)
+    :param placement_timeout: seconds to wait for a worker to be placed before raising
+    """
+
+    backend_name = "ray"
+
+    def __init__(
+        self,
+        env_id: str,
+        num_workers: int,
+        envs_per_worker: int,
+        *,
+        address: str | None = None,
+        cpus_per_worker: float = 1.0,
+        max_restarts: int = 3,
+        placement_timeout: float = 120.0,
+        **kwargs: Any,
+    ):
+        try:
+            import ray
+        except ImportError as error:  # pragma: no cover - the suite runs with the extra installed
+            raise ImportError("RayRollouts needs Ray: pip install 'sb3-trpo-plus[ray]'") from error
+        if not (isinstance(cpus_per_worker, int | float) and not isinstance(cpus_per_worker, bool) and cpus_per_worker >= 0):
+            raise ValueError(f"RayRollouts: `cpus_per_worker` must be a number >= 0, got {cpus_per_worker!r}")
+        if not ray.is_initialized():
+            ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        self._cpus_per_worker, self._placement_timeout = float(cpus_per_worker), float(placement_timeout)
+        super().__init__(env_id, num_workers, envs_per_worker, max_restarts=max_restarts, **kwargs)
+
+    def _make_backend(self) -> _Backend:
+        return _RayBackend(self._cpus_per_worker, self._placement_timeout)
+
+
+# ---------------------------------------------------------------------------------------------------- helpers
+def _cpu_copy(policy: ActorCriticPolicy) -> ActorCriticPolicy:
+    """A CPU copy of ``policy`` without its optimizer (workers only sample)."""
+    import copy
+
+    optimizer = getattr(policy, "optimizer", None)
+    try:
+        policy.optimizer = None  # type: ignore[assignment]
+        clone = copy.deepcopy(policy)
+    finally:
+        policy.optimizer = optimizer  # type: ignore[assignment]
+    return clone.to("cpu")
+
+
+class _MonitorWriter:
+    """SB3's ``Monitor`` CSV for the pool's episodes (``r``, ``l``, ``t`` and the ``info_keywords``)."""
+
+    def __init__(self, filename: str, env_id: str, info_keywords: tuple[str, ...]):
+        self.writer = ResultsWriter(filename, header={"t_start": time.time(), "env_id": env_id}, extra_keys=info_keywords)
+        self.info_keywords = info_keywords
+
+    def write(self, infos: Iterable[dict[str, Any]]) -> None:
+        for info in infos:
+            episode = info.get("episode")
+            if episode is not None:
+                row: dict[str, Any] = {"r": episode["r"], "l": episode["l"], "t": episode["t"]}
+                row.update({key: info.get(key) for key in self.info_keywords})
+                self.writer.write_row(row)
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+def rollout_workers(env: VecEnv) -> tuple[RolloutWorkers, VecNormalize | None] | None:
+    """``(pool, vec_normalize)`` when ``env`` is a :class:`RolloutWorkers` pool, bare or under one ``VecNormalize``."""
+    if isinstance(env, RolloutWorkers):
+        return env, None
+    if isinstance(env, VecNormalize) and isinstance(env.venv, RolloutWorkers):
+        return env.venv, env
+    return None
