@@ -11,7 +11,7 @@ import functools
 import json
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -108,17 +108,14 @@ def _save_cleanly_on_interrupt() -> None:
     ExperimentManager.save_trained_model = save_trained_model  # type: ignore[method-assign]
 
 
-def _batched_training_envs(n_threads: int) -> None:
-    """Make rl-zoo3 build the training env of a grasp_envs id with the batched engine (``make_batch_env``): the same
-    seeds (env ``i``: ``seed + i``), ``env_kwargs`` and ``env_wrapper`` (``ScriptedStarts`` runs batched; any other
-    wrapper is refused), episode statistics from a ``VecMonitor`` (``<run>/batch.monitor.csv``). The evaluation env
-    stays rl-zoo3's."""
+def _custom_training_envs(make_vec_env: Callable[..., Any], key: tuple[Any, ...]) -> None:
+    """Make rl-zoo3 build the training env with ``make_vec_env(gym_id, <make_vec_env's arguments>)`` (the batched
+    engine, or a pool of rollout workers: ``sb3_trpo_plus.zoo``), with the recipe's seeds, ``env_kwargs`` and
+    ``env_wrapper``. The evaluation env stays rl-zoo3's."""
     from rl_zoo3 import exp_manager
 
-    from sb3_trpo_plus.zoo import batch_training_env
-
     manager = exp_manager.ExperimentManager
-    if getattr(manager.create_envs, "_batched", 0) == n_threads:
+    if getattr(manager.create_envs, "_custom_training_envs", None) == key:
         return
     original = getattr(manager.create_envs, "__wrapped__", manager.create_envs)
 
@@ -127,29 +124,47 @@ def _batched_training_envs(n_threads: int) -> None:
         if eval_env:
             return original(self, n_envs, eval_env, no_log)
         plain = exp_manager.make_vec_env
-        exp_manager.make_vec_env = functools.partial(batch_training_env, self.env_name.gym_id, n_threads)
+        exp_manager.make_vec_env = functools.partial(make_vec_env, self.env_name.gym_id)
         try:
             return original(self, n_envs, eval_env, no_log)
         finally:
             exp_manager.make_vec_env = plain
 
-    create_envs._batched = n_threads  # type: ignore[attr-defined]
+    create_envs._custom_training_envs = key  # type: ignore[attr-defined]
     manager.create_envs = create_envs  # type: ignore[method-assign]
+
+
+def _workers_option(value: str) -> tuple[str, int]:
+    """``--workers BACKEND:N`` as ``(backend, N)``."""
+    from sb3_trpo_plus.zoo import WORKER_BACKENDS
+
+    backend, _, count = value.partition(":")
+    if backend not in WORKER_BACKENDS or not count.isdigit() or int(count) < 1:
+        raise argparse.ArgumentTypeError(
+            f"expected BACKEND:N with BACKEND one of {', '.join(WORKER_BACKENDS)} and N >= 1, got {value!r}"
+        )
+    return backend, int(count)
 
 
 def train(argv: Sequence[str]) -> None:
     """``trpo-plus train --env ID [--algo trpo_plus|trpo|ppo] [--vec-env dummy|subproc|batch] [--sim-threads N]
-    [rl_zoo3 train flags]``.
+    [--workers inprocess|process|ray:N] [rl_zoo3 train flags]``.
 
     ``--vec-env batch`` steps the training envs with the batched engine (``grasp_envs.make_batch_env``, physics on
     ``--sim-threads`` threads): the same transitions as ``dummy``, faster. Ctrl-C stops at the next env step and saves
     the run (model, replay memory, VecNormalize statistics), from which ``-i <run>/<ENV>.zip`` resumes.
+    ``--workers ray:8`` collects with 8 Ray workers (``sb3_trpo_plus.rollouts.RayRollouts``; the cluster at
+    ``RAY_ADDRESS``, else Ray on this machine), each stepping ``n_envs / 8`` of the recipe's envs.
     """
     parser = argparse.ArgumentParser(prog="trpo-plus train", add_help=False)
     parser.add_argument("--algo", default="trpo_plus", choices=ALGO_CHOICES)
     parser.add_argument("--env", required=True)
     parser.add_argument("--vec-env", default="dummy", choices=("dummy", "subproc", "batch"))
     parser.add_argument("--sim-threads", type=int, default=1, help="threads of the batched engine's physics")
+    parser.add_argument(
+        "--workers", type=_workers_option, default=None, metavar="BACKEND:N",
+        help="collect with N rollout workers (inprocess, process or ray), the recipe's n_envs split over them",
+    )  # fmt: skip
     known, rest = parser.parse_known_args(argv)
     if "-h" in rest or "--help" in rest:
         parser.print_help()
@@ -159,12 +174,25 @@ def train(argv: Sequence[str]) -> None:
 
     if known.sim_threads < 0:
         parser.error(f"--sim-threads must be >= 0 (0: every CPU), got {known.sim_threads}")
-    if known.vec_env == "batch":
+    if known.workers is not None:
+        if known.vec_env != "dummy":
+            parser.error(f"--workers collects with its own workers' envs; --vec-env {known.vec_env} does not apply")
+        if known.algo != "trpo_plus":
+            parser.error(f"--workers collects whole segments for trpo_plus only, got --algo {known.algo}")
+        from sb3_trpo_plus.zoo import workers_training_env
+
+        backend, count = known.workers
+        make = functools.partial(workers_training_env, backend=backend, num_workers=count, n_threads=known.sim_threads)
+        _custom_training_envs(make, ("workers", backend, count, known.sim_threads))
+    elif known.vec_env == "batch":
         if known.env not in grasp_envs.ENV_IDS:
             parser.error(f"--vec-env batch runs the tasks of grasp_envs ({', '.join(grasp_envs.ENV_IDS)}), got {known.env}")
-        _batched_training_envs(known.sim_threads)
+        from sb3_trpo_plus.zoo import batch_training_env
+
+        make_batch = functools.partial(batch_training_env, n_threads=known.sim_threads)
+        _custom_training_envs(make_batch, ("batch", known.sim_threads))
     elif known.sim_threads != 1:
-        parser.error("--sim-threads sets the batched engine's threads: it needs --vec-env batch")
+        parser.error("--sim-threads sets the physics threads of --vec-env batch or --workers")
     _name_tensorboard_runs()
     _save_cleanly_on_interrupt()
     vec_env = "dummy" if known.vec_env == "batch" else known.vec_env

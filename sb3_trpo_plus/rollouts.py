@@ -31,6 +31,7 @@ import contextlib
 import io
 import multiprocessing as mp
 import os
+import re
 import signal
 import socket
 import sys
@@ -564,9 +565,12 @@ class _RayBackend(_Backend):
         try:
             return self.ray.get(handle)
         except exceptions.RayTaskError as error:
-            raise RemoteTraceback(str(error)) from None
+            raise RemoteTraceback(_plain(str(error))) from None
         except (exceptions.RayActorError, exceptions.NodeDiedError, exceptions.ObjectLostError) as error:
-            raise _WorkerDied(f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}") from error
+            message = _plain(str(error))
+            if "creation task" in message:  # its __init__ raised: a Python error to report, not a death to restart
+                raise RemoteTraceback(message) from None
+            raise _WorkerDied(f"{type(error).__name__}: {message.splitlines()[0] if message else ''}") from error
 
     def stop(self, index: int) -> None:
         actor = self.actors.pop(index, None)
@@ -949,6 +953,11 @@ class RayRollouts(RolloutWorkers):
 
 
 # ---------------------------------------------------------------------------------------------------- helpers
+def _plain(text: str) -> str:
+    """``text`` without terminal colour codes (Ray colours its tracebacks)."""
+    return re.sub(r"\x1b\[[0-9;]*m", "", text)
+
+
 def _cpu_copy(policy: ActorCriticPolicy) -> ActorCriticPolicy:
     """A CPU copy of ``policy`` without its optimizer (workers only sample)."""
     import copy

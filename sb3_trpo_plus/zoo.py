@@ -350,28 +350,11 @@ def _leave_training_aids_out_of_evaluation() -> None:
             module.create_test_env = _create_test_env  # type: ignore[attr-defined]
 
 
-def batch_training_env(
-    env_id: str,
-    n_threads: int,
-    env_fn: Any,
-    n_envs: int = 1,
-    seed: int | None = None,
-    env_kwargs: dict[str, Any] | None = None,
-    monitor_dir: str | None = None,
-    wrapper_class: Any = None,
-    vec_env_cls: Any = None,
-    vec_env_kwargs: dict[str, Any] | None = None,
-    monitor_kwargs: dict[str, Any] | None = None,
-) -> Any:
-    """``make_vec_env``'s signature, answered by the batched engine (``grasp_envs.make_batch_env``) for ``env_id``.
-
-    ``wrapper_class`` is rl-zoo3's ``env_wrapper`` (a class, or the function that applies a YAML list of them): only
-    ``grasp_envs.wrappers.ScriptedStarts`` can be run batched, any other raises ``TypeError`` naming it.
-    """
+def _scripted_starts_of(wrapper_class: Any, flag: str) -> dict[str, Any] | None:
+    """The ``ScriptedStarts`` options in rl-zoo3's ``env_wrapper`` (a class, or the function that applies a YAML list
+    of them), None without one; any other wrapper raises ``TypeError`` naming it and ``flag``."""
     import inspect
-    import os
 
-    from grasp_envs import make_batch_env
     from grasp_envs.wrappers import ScriptedStarts
 
     wrappers: list[tuple[Any, dict[str, Any]]] = []
@@ -381,17 +364,85 @@ def batch_training_env(
         cells = inspect.getclosurevars(wrapper_class).nonlocals
         wrappers = list(zip(cells.get("wrapper_classes", []), cells.get("wrapper_kwargs", []), strict=True))
         if not wrappers:
-            raise TypeError(f"--vec-env batch cannot read the env_wrapper {wrapper_class!r}")
+            raise TypeError(f"{flag} cannot read the env_wrapper {wrapper_class!r}")
     others = [getattr(cls, "__name__", str(cls)) for cls, _ in wrappers if cls is not ScriptedStarts]
     if others or len(wrappers) > 1:
         raise TypeError(
-            f"--vec-env batch runs no per-env Gymnasium wrappers but ScriptedStarts (once); the env_wrapper has "
+            f"{flag} runs no per-env Gymnasium wrappers but ScriptedStarts (once); the env_wrapper has "
             f"{', '.join(others) or 'ScriptedStarts twice'}: use --vec-env dummy"
         )
+    return dict(wrappers[0][1]) if wrappers else None
+
+
+def batch_training_env(
+    env_id: str,
+    env_fn: Any,
+    n_envs: int = 1,
+    seed: int | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    monitor_dir: str | None = None,
+    wrapper_class: Any = None,
+    vec_env_cls: Any = None,
+    vec_env_kwargs: dict[str, Any] | None = None,
+    monitor_kwargs: dict[str, Any] | None = None,
+    *,
+    n_threads: int = 1,
+) -> Any:
+    """``make_vec_env``'s signature, answered by the batched engine (``grasp_envs.make_batch_env``) for ``env_id``.
+
+    ``wrapper_class`` is rl-zoo3's ``env_wrapper``: only ``grasp_envs.wrappers.ScriptedStarts`` can be run batched,
+    any other raises ``TypeError`` naming it.
+    """
+    import os
+
+    from grasp_envs import make_batch_env
+    from grasp_envs.wrappers import ScriptedStarts
+
+    scripted = _scripted_starts_of(wrapper_class, "--vec-env batch")
     return make_batch_env(
         env_id, n_envs, seed=seed, n_threads=n_threads, monitor=True,
         monitor_file=None if monitor_dir is None else os.path.join(monitor_dir, "batch"),
         info_keywords=(monitor_kwargs or {}).get("info_keywords", ()),
-        wrapper_class=ScriptedStarts if wrappers else None, wrapper_kwargs=dict(wrappers[0][1]) if wrappers else None,
+        wrapper_class=ScriptedStarts if scripted is not None else None, wrapper_kwargs=scripted,
         **(env_kwargs or {}),
+    )  # fmt: skip
+
+
+WORKER_BACKENDS = ("inprocess", "process", "ray")
+
+
+def workers_training_env(
+    env_id: str,
+    env_fn: Any,
+    n_envs: int = 1,
+    seed: int | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    monitor_dir: str | None = None,
+    wrapper_class: Any = None,
+    vec_env_cls: Any = None,
+    vec_env_kwargs: dict[str, Any] | None = None,
+    monitor_kwargs: dict[str, Any] | None = None,
+    *,
+    backend: str,
+    num_workers: int,
+    n_threads: int = 1,
+) -> Any:
+    """``make_vec_env``'s signature, answered by a pool of rollout workers (``sb3_trpo_plus.rollouts``): the recipe's
+    ``n_envs`` split evenly over ``num_workers`` workers of ``backend`` (``inprocess``, ``process`` or ``ray``), the
+    same seeds (env ``i``: ``seed + i``), ``env_kwargs`` and scripted starts; episodes in ``<run>/workers.monitor.csv``.
+    """
+    import os
+
+    from sb3_trpo_plus import rollouts
+
+    if n_envs % num_workers:
+        raise ValueError(
+            f"--workers {backend}:{num_workers}: the recipe's n_envs={n_envs} does not split over {num_workers} workers"
+        )
+    pool_class = {"inprocess": rollouts.InProcessRollouts, "process": rollouts.ProcessRollouts, "ray": rollouts.RayRollouts}
+    return pool_class[backend](
+        env_id, num_workers, n_envs // num_workers, seed=seed, sim_threads=n_threads, env_kwargs=env_kwargs,
+        scripted_starts=_scripted_starts_of(wrapper_class, f"--workers {backend}"),
+        info_keywords=tuple((monitor_kwargs or {}).get("info_keywords", ())),
+        monitor_file=None if monitor_dir is None else os.path.join(monitor_dir, "workers"),
     )  # fmt: skip

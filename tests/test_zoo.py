@@ -232,4 +232,40 @@ def test_batched_engine_flags_are_checked(capsys) -> None:
     assert "--vec-env batch runs the tasks of grasp_envs" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         cli.main(["train", "--env", "Grasper3D-v7", "--sim-threads", "2"])
-    assert "it needs --vec-env batch" in capsys.readouterr().err
+    assert "the physics threads of --vec-env batch or --workers" in capsys.readouterr().err
+
+
+def test_train_with_rollout_workers_in_processes_trains_as_in_process(tmp_path: Path, monkeypatch) -> None:
+    """``--workers process:2``: the recipe's envs split over two worker processes train the parameters that the
+    same two workers give in the learner's process; the run saves and its episodes reach the monitor file."""
+    monkeypatch.chdir(tmp_path)
+    params = {}
+    for workers in ("inprocess:2", "process:2"):
+        logs = tmp_path / workers.replace(":", "_")
+        cli.main(
+            ["train", "--env", "Grasper3D-v7", "-n", "256", "--seed", "3", "-f", str(logs), "--eval-freq", "-1",
+             "--workers", workers, "-params", "n_envs:2", "n_steps:64", "batch_size:64", "--num-threads", "1"]
+        )  # fmt: skip
+        from sb3_trpo_plus import TRPOPlus
+
+        run = logs / "trpo_plus" / "Grasper3D-v7_1"
+        params[workers] = TRPOPlus.load(run / "Grasper3D-v7.zip").policy.state_dict()
+        assert (run / "workers.monitor.csv").exists() and (run / "Grasper3D-v7" / "vecnormalize.pkl").exists()
+    for key, value in params["inprocess:2"].items():
+        np.testing.assert_array_equal(params["process:2"][key].numpy(), value.numpy(), err_msg=key)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--workers", "ray"], "expected BACKEND:N"),
+        (["--workers", "threads:2"], "expected BACKEND:N with BACKEND one of inprocess, process, ray"),
+        (["--workers", "process:0"], "expected BACKEND:N"),
+        (["--workers", "process:2", "--vec-env", "batch"], "--vec-env batch does not apply"),
+        (["--workers", "process:2", "--algo", "ppo"], "for trpo_plus only"),
+    ],
+)
+def test_workers_flag_is_checked(argv, message, capsys) -> None:
+    with pytest.raises(SystemExit):
+        cli.main(["train", "--env", "Grasper3D-v7", *argv])
+    assert message in capsys.readouterr().err

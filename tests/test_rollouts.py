@@ -1,0 +1,238 @@
+"""Rollout workers (sb3_trpo_plus.rollouts) in the learner's process and in local processes."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+from grasp_envs import make_batch_env
+from sb3_trpo_plus import TRPOPlus
+from sb3_trpo_plus.rollouts import InProcessRollouts, ProcessRollouts, RolloutWorkerError
+
+SMALL = {"n_steps": 32, "policy_kwargs": {"net_arch": [16, 16]}, "n_critic_updates": 2, "cg_max_steps": 5}
+
+
+def parameters(model: TRPOPlus) -> th.Tensor:
+    return th.nn.utils.parameters_to_vector(model.policy.parameters()).detach().clone()
+
+
+def train(pool, iterations: int = 2, **kwargs) -> tuple[TRPOPlus, VecNormalize]:
+    env = VecNormalize(pool)
+    model = TRPOPlus("MlpPolicy", env, seed=0, **{**SMALL, **kwargs})
+    model.learn(iterations * SMALL["n_steps"] * pool.num_envs)
+    return model, env
+
+
+def test_local_processes_collect_what_the_in_process_workers_collect() -> None:
+    """Same seeds and partition: the same rollouts, VecNormalize statistics and trained weights, replay memory on."""
+    results = []
+    for pool_class in (InProcessRollouts, ProcessRollouts):
+        pool = pool_class("Reacher2D-v1", num_workers=2, envs_per_worker=3, seed=7)
+        try:
+            model, env = train(pool, replay_memory=2)
+            buffer = model.rollout_buffer
+            results.append(
+                (parameters(model), env.obs_rms.mean.copy(), env.ret_rms.var, buffer.observations.copy(),
+                 buffer.rewards.copy(), buffer.advantages.copy(), [r.rewards.copy() for r in model.rollout_memory])
+            )  # fmt: skip
+        finally:
+            pool.close()
+    (a, b) = results
+    assert th.equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+    assert a[2] == b[2]
+    for x, y in zip(a[3:6], b[3:6], strict=True):
+        np.testing.assert_array_equal(x, y)
+    for x, y in zip(a[6], b[6], strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_workers_envs_are_the_batched_engines_envs_with_make_vec_envs_seeds() -> None:
+    """Stepped one step at a time, 2 workers x 3 envs give the transitions of one 6-env batch (env i: seed + i)."""
+    pool = InProcessRollouts("Reacher2D-v1", num_workers=2, envs_per_worker=3, seed=11)
+    batch = make_batch_env("Reacher2D-v1", n_envs=6, seed=11)
+    rng = np.random.default_rng(0)
+    try:
+        np.testing.assert_array_equal(pool.reset(), batch.reset())
+        for _ in range(120):  # past the 50-step time limit: autoresets and terminal observations
+            actions = rng.uniform(-1, 1, size=(6, *pool.action_space.shape)).astype(np.float32)
+            obs_a, rew_a, done_a, infos_a = pool.step(actions)
+            obs_b, rew_b, done_b, infos_b = batch.step(actions)
+            np.testing.assert_array_equal(obs_a, obs_b)
+            np.testing.assert_array_equal(rew_a, rew_b)
+            np.testing.assert_array_equal(done_a, done_b)
+            for info_a, info_b in zip(infos_a, infos_b, strict=True):
+                assert info_a.keys() == info_b.keys()
+                if "terminal_observation" in info_a:
+                    np.testing.assert_array_equal(info_a["terminal_observation"], info_b["terminal_observation"])
+                    assert info_a["episode"]["r"] == info_b["episode"]["r"]
+    finally:
+        pool.close()
+        batch.close()
+
+
+def test_a_pool_answers_the_vec_env_queries_of_the_right_envs() -> None:
+    pool = InProcessRollouts("Reacher2D-v1", num_workers=2, envs_per_worker=2, seed=0)
+    try:
+        assert pool.num_envs == 4 and len(pool.workers) == 2
+        pool.reset()
+        pool.set_attr("custom_flag", 5, indices=[1, 2])
+        assert pool.get_attr("custom_flag", indices=[1, 2]) == [5, 5]
+        assert len(pool.get_attr("dt")) == 4
+        assert pool.env_is_wrapped(VecNormalize, indices=[3]) == [False]
+        assert len(pool.env_method("distance")) == 4
+        pool.seed(3)
+        first = pool.reset()
+        pool.seed(3)
+        np.testing.assert_array_equal(pool.reset(), first)
+    finally:
+        pool.close()
+
+
+class _Counting(BaseCallback):
+    def __init__(self) -> None:
+        super().__init__()
+        self.steps = 0
+        self.rollouts = 0
+        self.keys: set[str] = set()
+        self.logged: dict[str, float] = {}
+
+    def _on_step(self) -> bool:
+        self.steps += 1
+        self.keys |= set(self.locals)
+        return True
+
+    def _on_rollout_end(self) -> None:
+        self.rollouts += 1
+        self.logged = dict(self.logger.name_to_value)
+
+
+def test_callbacks_fire_once_per_step_of_the_segments(tmp_path) -> None:
+    pool = InProcessRollouts("Reacher2D-v1", num_workers=2, envs_per_worker=2, seed=1)
+    eval_env = VecNormalize(DummyVecEnv([lambda: __import__("gymnasium").make("Reacher2D-v1")]), training=False)
+    counting = _Counting()
+    callbacks = CallbackList([
+        counting,
+        EvalCallback(eval_env, eval_freq=SMALL["n_steps"], n_eval_episodes=2, log_path=str(tmp_path), verbose=0),
+        CheckpointCallback(save_freq=SMALL["n_steps"], save_path=str(tmp_path), save_vecnormalize=True),
+    ])  # fmt: skip
+    try:
+        env = VecNormalize(pool)
+        model = TRPOPlus("MlpPolicy", env, seed=0, **SMALL)
+        model.learn(2 * SMALL["n_steps"] * pool.num_envs, callback=callbacks)
+        assert counting.steps == 2 * SMALL["n_steps"] and counting.rollouts == 2
+        assert {"new_obs", "rewards", "dones", "infos", "actions"} <= counting.keys
+        assert (tmp_path / "evaluations.npz").exists()
+        assert sorted(p.name for p in tmp_path.glob("rl_model_*_steps.zip"))
+        np.testing.assert_array_equal(eval_env.obs_rms.mean, env.obs_rms.mean)  # EvalCallback synced the statistics
+        assert {"workers/broadcast_ms", "workers/transfer_ms", "workers/worker_1_steps_per_s"} <= counting.logged.keys()
+        assert len(model.ep_info_buffer) > 0  # the 50-step episodes ended inside the segments
+    finally:
+        pool.close()
+
+
+def test_a_saved_model_resumes_on_a_new_pool(tmp_path) -> None:
+    pool = InProcessRollouts("Reacher2D-v1", num_workers=2, envs_per_worker=2, seed=2)
+    model, env = train(pool, iterations=1, replay_memory=2)
+    model.save(tmp_path / "model.zip")
+    env.save(str(tmp_path / "vecnormalize.pkl"))
+    pool.close()
+    again = InProcessRollouts("Reacher2D-v1", num_workers=2, envs_per_worker=2, seed=3)
+    try:
+        loaded = TRPOPlus.load(tmp_path / "model.zip", env=VecNormalize.load(str(tmp_path / "vecnormalize.pkl"), again))
+        assert len(loaded.rollout_memory) == 1
+        before = parameters(loaded)
+        loaded.learn(SMALL["n_steps"] * again.num_envs, reset_num_timesteps=False)
+        assert loaded.num_timesteps == 2 * SMALL["n_steps"] * again.num_envs
+        assert not th.equal(before, parameters(loaded)) and len(loaded.rollout_memory) == 2
+    finally:
+        again.close()
+
+
+def test_episodes_are_written_to_the_monitor_file(tmp_path) -> None:
+    pool = InProcessRollouts("Reacher2D-v1", num_workers=1, envs_per_worker=2, seed=0, monitor_file=str(tmp_path / "run"))
+    try:
+        train(pool, iterations=2)
+    finally:
+        pool.close()
+    rows = (tmp_path / "run.monitor.csv").read_text().splitlines()
+    assert rows[1] == "r,l,t,is_success" and len(rows) - 2 == 2 * 2 * SMALL["n_steps"] // 50
+
+
+def _kill_worker_soon(pool: ProcessRollouts, worker: int, delay: float) -> threading.Timer:
+    pid = pool.workers[worker]["pid"]
+    timer = threading.Timer(delay, os.kill, args=(pid, signal.SIGKILL))
+    timer.start()
+    return timer
+
+
+def test_a_process_worker_killed_mid_segment_is_restarted_and_its_segment_collected_again() -> None:
+    pool = ProcessRollouts("Grasper3D-v7", num_workers=2, envs_per_worker=2, seed=0, max_restarts=1)
+    try:
+        old_pid = pool.workers[1]["pid"]
+        env = VecNormalize(pool)
+        model = TRPOPlus("MlpPolicy", env, seed=0, **{**SMALL, "n_steps": 400})
+        timer = _kill_worker_soon(pool, 1, 0.5)
+        model.learn(400 * pool.num_envs)
+        timer.join()
+        assert pool.restarts == [0, 1] and pool.workers[1]["pid"] != old_pid
+        assert model.num_timesteps == 400 * pool.num_envs
+    finally:
+        pool.close()
+
+
+def test_a_dead_worker_beyond_its_restarts_names_itself_and_leaves_the_weights() -> None:
+    pool = ProcessRollouts("Grasper3D-v7", num_workers=2, envs_per_worker=2, seed=0)
+    try:
+        model = TRPOPlus("MlpPolicy", pool, seed=0, **{**SMALL, "n_steps": 400})
+        before = parameters(model)
+        timer = _kill_worker_soon(pool, 0, 0.5)
+        with pytest.raises(RolloutWorkerError, match=r"ProcessRollouts worker 0 \(pid \d+ .*envs 0-1 \(Grasper3D-v7\) died"):
+            model.learn(2 * 400 * pool.num_envs)
+        timer.join()
+        assert th.equal(before, parameters(model))
+    finally:
+        pool.close()
+
+
+def test_an_error_inside_a_worker_surfaces_with_its_traceback() -> None:
+    with pytest.raises(RolloutWorkerError, match=r"(?s)ProcessRollouts worker 0 .*Traceback.*no_such_option"):
+        ProcessRollouts("Grasper3D-v7", num_workers=1, envs_per_worker=1, env_kwargs={"no_such_option": 1})
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"num_workers": 0}, "`num_workers` must be an int >= 1, got 0"),
+        ({"envs_per_worker": True}, "`envs_per_worker` must be an int >= 1, got True"),
+        ({"seed": "1"}, "`seed` must be an int or None, got '1'"),
+        ({"max_restarts": 1.5}, "`max_restarts` must be an int >= 0, got 1.5"),
+        ({"sim_threads": -1}, "`sim_threads` must be an int >= 0, got -1"),
+    ],
+)
+def test_bad_pool_arguments_are_named(kwargs, message) -> None:
+    arguments = {"num_workers": 1, "envs_per_worker": 1, **kwargs}
+    with pytest.raises(ValueError, match=f"InProcessRollouts: {message}".replace("(", r"\(").replace(")", r"\)")):
+        InProcessRollouts("Reacher2D-v1", **arguments)
+
+
+def test_an_unknown_env_id_fails_before_any_worker_starts() -> None:
+    with pytest.raises(Exception, match="NoSuchEnv"):
+        ProcessRollouts("NoSuchEnv-v0", num_workers=2, envs_per_worker=1)
+
+
+def test_gsde_is_refused_on_workers() -> None:
+    pool = InProcessRollouts("Reacher2D-v1", num_workers=1, envs_per_worker=2, seed=0)
+    try:
+        model = TRPOPlus("MlpPolicy", pool, seed=0, use_sde=True, **SMALL)
+        with pytest.raises(ValueError, match="gSDE"):
+            model.learn(SMALL["n_steps"] * 2)
+    finally:
+        pool.close()

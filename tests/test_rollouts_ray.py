@@ -1,0 +1,74 @@
+"""RayRollouts on a local Ray instance of 2 CPUs: the same training as in-process workers, restarts, errors."""
+
+from __future__ import annotations
+
+import pytest
+import torch as th
+from test_rollouts import SMALL, _kill_worker_soon, parameters, train
+
+from sb3_trpo_plus import TRPOPlus
+from sb3_trpo_plus.rollouts import InProcessRollouts, RayRollouts, RolloutWorkerError
+
+ray = pytest.importorskip("ray")  # the `ray` extra; CI installs it
+
+pytestmark = pytest.mark.xdist_group("ray")  # one Ray instance at a time on this machine
+
+
+@pytest.fixture(scope="module", autouse=True)
+def local_ray():
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield
+    ray.shutdown()
+
+
+@pytest.mark.parametrize("num_workers", [1, 2])
+def test_ray_workers_train_the_in_process_workers_parameters(num_workers: int) -> None:
+    """Bit-equal on CPU: rollouts, VecNormalize statistics, replay memory and weights, for the same partition."""
+    results = []
+    for pool_class in (InProcessRollouts, RayRollouts):
+        pool = pool_class("Reacher2D-v1", num_workers=num_workers, envs_per_worker=4 // num_workers, seed=5)
+        try:
+            model, env = train(pool, replay_memory=2)
+            results.append((parameters(model), env.obs_rms.var.copy(), model.rollout_buffer.returns.copy()))
+        finally:
+            pool.close()
+    (a, b) = results
+    assert th.equal(a[0], b[0])
+    assert (a[1] == b[1]).all() and (a[2] == b[2]).all()
+
+
+def test_a_ray_worker_killed_mid_segment_is_restarted() -> None:
+    pool = RayRollouts("Grasper3D-v7", num_workers=2, envs_per_worker=2, seed=0, max_restarts=2)
+    try:
+        old_pid = pool.workers[0]["pid"]
+        model = TRPOPlus("MlpPolicy", pool, seed=0, **{**SMALL, "n_steps": 400})
+        timer = _kill_worker_soon(pool, 0, 1.0)
+        model.learn(400 * pool.num_envs)
+        timer.join()
+        assert pool.restarts == [1, 0] and pool.workers[0]["pid"] != old_pid
+        assert model.num_timesteps == 400 * pool.num_envs
+    finally:
+        pool.close()
+
+
+def test_an_error_inside_a_ray_worker_surfaces_with_its_traceback() -> None:
+    with pytest.raises(RolloutWorkerError, match=r"(?s)RayRollouts worker 0 .*no_such_option"):
+        RayRollouts("Grasper3D-v7", num_workers=1, envs_per_worker=1, env_kwargs={"no_such_option": 1})
+
+
+def test_a_worker_that_cannot_be_placed_is_named() -> None:
+    with pytest.raises(RolloutWorkerError, match=r"RayRollouts worker 0 .*not placed within 1 s"):
+        RayRollouts("Reacher2D-v1", num_workers=1, envs_per_worker=1, cpus_per_worker=8, placement_timeout=1)
+
+
+def test_the_train_command_collects_with_ray_workers(tmp_path, monkeypatch) -> None:
+    from sb3_trpo_plus import cli
+
+    monkeypatch.chdir(tmp_path)
+    cli.main(
+        ["train", "--env", "Reacher2D-v1", "-n", "256", "--seed", "1", "-f", str(tmp_path), "--eval-freq", "-1",
+         "--workers", "ray:2", "-params", "n_envs:2", "n_steps:64", "batch_size:64", "--num-threads", "1"]
+    )  # fmt: skip
+    run = tmp_path / "trpo_plus" / "Reacher2D-v1_1"
+    assert TRPOPlus.load(run / "Reacher2D-v1.zip").num_timesteps == 256
+    assert (run / "workers.monitor.csv").read_text().count("\n") > 2
