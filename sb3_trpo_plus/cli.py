@@ -7,11 +7,12 @@ import ``grasp_envs`` and default ``-conf`` to our validated YAML for the chosen
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import json
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -108,16 +109,18 @@ def _save_cleanly_on_interrupt() -> None:
     ExperimentManager.save_trained_model = save_trained_model  # type: ignore[method-assign]
 
 
-def _custom_training_envs(make_vec_env: Callable[..., Any], key: tuple[Any, ...]) -> None:
-    """Make rl-zoo3 build the training env with ``make_vec_env(gym_id, <make_vec_env's arguments>)`` (the batched
-    engine, or a pool of rollout workers: ``sb3_trpo_plus.zoo``), with the recipe's seeds, ``env_kwargs`` and
-    ``env_wrapper``. The evaluation env stays rl-zoo3's."""
+@contextlib.contextmanager
+def _custom_training_envs(make_vec_env: Callable[..., Any] | None) -> Iterator[None]:
+    """While open, rl-zoo3 builds the training env with ``make_vec_env(gym_id, <make_vec_env's arguments>)`` (the
+    batched engine, or a pool of rollout workers: ``sb3_trpo_plus.zoo``), with the recipe's seeds, ``env_kwargs`` and
+    ``env_wrapper``; the evaluation env stays rl-zoo3's. ``None``: rl-zoo3's own training env."""
     from rl_zoo3 import exp_manager
 
     manager = exp_manager.ExperimentManager
-    if getattr(manager.create_envs, "_custom_training_envs", None) == key:
+    original = manager.create_envs
+    if make_vec_env is None:
+        yield
         return
-    original = getattr(manager.create_envs, "__wrapped__", manager.create_envs)
 
     @functools.wraps(original)
     def create_envs(self: Any, n_envs: int, eval_env: bool = False, no_log: bool = False) -> Any:
@@ -130,8 +133,11 @@ def _custom_training_envs(make_vec_env: Callable[..., Any], key: tuple[Any, ...]
         finally:
             exp_manager.make_vec_env = plain
 
-    create_envs._custom_training_envs = key  # type: ignore[attr-defined]
     manager.create_envs = create_envs  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        manager.create_envs = original  # type: ignore[method-assign]
 
 
 def _workers_option(value: str) -> tuple[str, int]:
@@ -174,6 +180,7 @@ def train(argv: Sequence[str]) -> None:
 
     if known.sim_threads < 0:
         parser.error(f"--sim-threads must be >= 0 (0: every CPU), got {known.sim_threads}")
+    make: Callable[..., Any] | None = None
     if known.workers is not None:
         if known.vec_env != "dummy":
             parser.error(f"--workers collects with its own workers' envs; --vec-env {known.vec_env} does not apply")
@@ -183,21 +190,20 @@ def train(argv: Sequence[str]) -> None:
 
         backend, count = known.workers
         make = functools.partial(workers_training_env, backend=backend, num_workers=count, n_threads=known.sim_threads)
-        _custom_training_envs(make, ("workers", backend, count, known.sim_threads))
     elif known.vec_env == "batch":
         if known.env not in grasp_envs.ENV_IDS:
             parser.error(f"--vec-env batch runs the tasks of grasp_envs ({', '.join(grasp_envs.ENV_IDS)}), got {known.env}")
         from sb3_trpo_plus.zoo import batch_training_env
 
-        make_batch = functools.partial(batch_training_env, n_threads=known.sim_threads)
-        _custom_training_envs(make_batch, ("batch", known.sim_threads))
+        make = functools.partial(batch_training_env, n_threads=known.sim_threads)
     elif known.sim_threads != 1:
         parser.error("--sim-threads sets the physics threads of --vec-env batch or --workers")
     _name_tensorboard_runs()
     _save_cleanly_on_interrupt()
     vec_env = "dummy" if known.vec_env == "batch" else known.vec_env
     sys.argv = ["trpo-plus train", *_zoo_argv(known.algo, known.env, [*rest, "--vec-env", vec_env])]
-    zoo_train()
+    with _custom_training_envs(make):
+        zoo_train()
 
 
 def _enjoy_parser() -> argparse.ArgumentParser:

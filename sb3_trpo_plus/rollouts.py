@@ -456,6 +456,7 @@ class _InProcessBackend(_Backend):
 def _process_main(remote: Connection, parent_remote: Connection, index: int, envs: WorkerEnvs, torch_seed: int | None) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the learner's to handle: it stops and closes us
     parent_remote.close()
+    th.set_num_threads(1)  # a worker's policy forward is small: one thread, as Ray gives each 1-CPU actor
     try:
         worker = RolloutWorker(index, envs, torch_seed)
     except Exception:
