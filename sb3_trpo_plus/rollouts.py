@@ -28,6 +28,7 @@ updates them after every step); the statistics see every raw observation and rew
 from __future__ import annotations
 
 import contextlib
+import importlib
 import io
 import multiprocessing as mp
 import os
@@ -50,7 +51,7 @@ from gymnasium import spaces
 from stable_baselines3.common.monitor import ResultsWriter
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.utils import obs_as_tensor
-from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 from sb3_trpo_plus.vec_env import RolloutWorkerError, _death_cause
@@ -173,7 +174,9 @@ class Segment:
     :param raw_observations: the envs' observations, ``n_steps + 1`` of them (the last: after the last step)
     :param last_observation: the policy's input after the last step
     :param actions: the policy's actions (before clipping to the action space)
-    :param rewards: the rewards the rollout buffer takes (normalised, time-limit truncations bootstrapped)
+    :param rewards: the rewards as ``VecNormalize`` gives them (normalised with the order's statistics)
+    :param buffer_rewards: ``rewards`` plus ``gamma * V(terminal observation)`` at time-limit truncations, as SB3's
+        ``collect_rollouts`` adds them: what the rollout buffer takes
     :param raw_rewards: the envs' rewards
     :param episode_starts: whether each step's observation starts an episode
     :param dones: whether each step ended an episode
@@ -183,6 +186,7 @@ class Segment:
     :param last_values: the value estimates of ``last_observation``
     :param ended: per step, ``(env, info)`` of each episode that ended (its raw ``terminal_observation`` included)
     :param seconds: the worker's time for the segment
+    :param restarted: per env, whether a restart of its worker reset it since the previous segment (set by the pool)
     """
 
     observations: np.ndarray
@@ -190,6 +194,7 @@ class Segment:
     last_observation: np.ndarray
     actions: np.ndarray
     rewards: np.ndarray
+    buffer_rewards: np.ndarray
     raw_rewards: np.ndarray
     episode_starts: np.ndarray
     dones: np.ndarray
@@ -199,6 +204,7 @@ class Segment:
     last_values: np.ndarray
     ended: list[list[tuple[int, dict[str, Any]]]]
     seconds: float
+    restarted: np.ndarray | None = None
 
     @classmethod
     def concatenate(cls, segments: Sequence[Segment]) -> Segment:
@@ -217,13 +223,14 @@ class Segment:
             ]
             for t in range(n_steps)
         ]
+        restarted = [s.restarted if s.restarted is not None else np.zeros(s.dones.shape[1], bool) for s in segments]
         return cls(
             observations=cat("observations"), raw_observations=cat("raw_observations"),
             last_observation=np.concatenate([s.last_observation for s in segments]), actions=cat("actions"),
-            rewards=cat("rewards"), raw_rewards=cat("raw_rewards"), episode_starts=cat("episode_starts"), dones=cat("dones"),
-            episode_timesteps=cat("episode_timesteps"), values=cat("values"), log_probs=cat("log_probs"),
-            last_values=np.concatenate([s.last_values for s in segments]), ended=ended,
-            seconds=max(s.seconds for s in segments),
+            rewards=cat("rewards"), buffer_rewards=cat("buffer_rewards"), raw_rewards=cat("raw_rewards"),
+            episode_starts=cat("episode_starts"), dones=cat("dones"), episode_timesteps=cat("episode_timesteps"),
+            values=cat("values"), log_probs=cat("log_probs"), last_values=np.concatenate([s.last_values for s in segments]),
+            ended=ended, seconds=max(s.seconds for s in segments), restarted=np.concatenate(restarted),
         )  # fmt: skip
 
 
@@ -332,6 +339,7 @@ class RolloutWorker:
         observations: np.ndarray | None = None
         actions_out: np.ndarray | None = None
         rewards_out = np.zeros((n_steps, n_envs), dtype=np.float32)
+        buffer_rewards = np.zeros((n_steps, n_envs), dtype=np.float32)
         raw_rewards = np.zeros((n_steps, n_envs), dtype=np.float32)
         episode_starts = np.zeros((n_steps, n_envs), dtype=np.float32)
         dones_out = np.zeros((n_steps, n_envs), dtype=bool)
@@ -358,8 +366,7 @@ class RolloutWorker:
                 new_raw, raw_reward, dones, infos = env.step(clipped)
                 assert isinstance(new_raw, np.ndarray)
                 rewards = norm.reward(raw_reward) if norm is not None else np.array(raw_reward, dtype=np.float32)
-                if isinstance(action_space, spaces.Discrete):
-                    actions = actions.reshape(-1, 1)
+                bootstrapped = rewards.copy()
                 done_infos: list[tuple[int, dict[str, Any]]] = []
                 for idx in np.flatnonzero(dones):
                     info = infos[idx]
@@ -369,15 +376,16 @@ class RolloutWorker:
                         terminal_obs = policy.obs_to_tensor(terminal_input)[0]
                         with th.no_grad():
                             terminal_value = policy.predict_values(terminal_obs)[0]  # type: ignore[arg-type]
-                        rewards[idx] += order.gamma * terminal_value
+                        bootstrapped[idx] += order.gamma * terminal_value
                     done_infos.append((int(idx), info))
                 if observations is None:
-                    observations = np.zeros((n_steps, *obs.shape), dtype=np.float32)
+                    observations = np.zeros((n_steps, *obs.shape), dtype=obs.dtype)  # float32 when normalised
                     actions_out = np.zeros((n_steps, *actions.shape), dtype=actions.dtype)
                 assert actions_out is not None
                 observations[t] = obs
                 actions_out[t] = actions
                 rewards_out[t] = rewards
+                buffer_rewards[t] = bootstrapped
                 raw_rewards[t] = raw_reward
                 dones_out[t] = dones
                 values_out[t] = values.cpu().numpy().flatten()
@@ -392,10 +400,11 @@ class RolloutWorker:
         episode_timesteps[n_steps] = self._timesteps
         assert observations is not None and actions_out is not None
         return Segment(
-            observations=observations, raw_observations=raw_observations, last_observation=np.array(obs, dtype=np.float32),
-            actions=actions_out, rewards=rewards_out, raw_rewards=raw_rewards, episode_starts=episode_starts,
-            dones=dones_out, episode_timesteps=episode_timesteps, values=values_out, log_probs=log_probs_out,
-            last_values=last_values.astype(np.float32), ended=ended, seconds=time.perf_counter() - start,
+            observations=observations, raw_observations=raw_observations, last_observation=np.array(obs),
+            actions=actions_out, rewards=rewards_out, buffer_rewards=buffer_rewards, raw_rewards=raw_rewards,
+            episode_starts=episode_starts, dones=dones_out, episode_timesteps=episode_timesteps, values=values_out,
+            log_probs=log_probs_out, last_values=last_values.astype(np.float32), ended=ended,
+            seconds=time.perf_counter() - start,
         )  # fmt: skip
 
 
@@ -433,18 +442,21 @@ class _InProcessBackend(_Backend):
         self.workers: dict[int, RolloutWorker] = {}
 
     def start(self, index: int, envs: WorkerEnvs, torch_seed: int | None) -> None:
-        self.workers[index] = RolloutWorker(index, envs, torch_seed)
+        try:
+            self.workers[index] = RolloutWorker(index, envs, torch_seed)
+        except Exception:
+            raise RemoteTraceback(traceback.format_exc()) from None
 
     def submit(self, index: int, method: str, *args: Any) -> Any:
         try:
             return True, getattr(self.workers[index], method)(*args)
-        except Exception as error:  # raised by result(), as the other backends raise a worker's error when asked
-            return False, error
+        except Exception:  # raised by result(), as the other backends raise a worker's error when asked
+            return False, traceback.format_exc()
 
     def result(self, index: int, handle: Any) -> Any:
         ok, value = handle
         if not ok:
-            raise value
+            raise RemoteTraceback(value)
         return value
 
     def stop(self, index: int) -> None:
@@ -499,14 +511,14 @@ class _ProcessBackend(_Backend):
         try:
             self.remotes[index].send((method, args))
         except (ConnectionError, EOFError) as error:
-            raise _WorkerDied(f"pid {self.processes[index].pid} {_death_cause(self.processes[index])}") from error
+            raise _WorkerDied(_death_cause(self.processes[index])) from error
         return None
 
     def result(self, index: int, handle: Any) -> Any:
         try:
             ok, value = self.remotes[index].recv()
         except (ConnectionError, EOFError) as error:
-            raise _WorkerDied(f"pid {self.processes[index].pid} {_death_cause(self.processes[index])}") from error
+            raise _WorkerDied(_death_cause(self.processes[index])) from error
         if not ok:
             raise RemoteTraceback(value)
         return value
@@ -569,7 +581,7 @@ class _RayBackend(_Backend):
             raise RemoteTraceback(_plain(str(error))) from None
         except (exceptions.RayActorError, exceptions.NodeDiedError, exceptions.ObjectLostError) as error:
             message = _plain(str(error))
-            if "creation task" in message:  # its __init__ raised: a Python error to report, not a death to restart
+            if getattr(error, "actor_init_failed", False):  # its __init__ raised: an error to report, not a death
                 raise RemoteTraceback(message) from None
             raise _WorkerDied(f"{type(error).__name__}: {message.splitlines()[0] if message else ''}") from error
 
@@ -600,7 +612,8 @@ class RolloutWorkers(VecEnv):
     :param sim_threads: threads of each worker's batched physics
     :param env_kwargs: the env's constructor options
     :param scripted_starts: ``grasp_envs.wrappers.ScriptedStarts`` options (the grasper's training resets), or None
-    :param info_keywords: info keys recorded in ``info["episode"]`` (as SB3's ``Monitor``)
+    :param info_keywords: info keys recorded in ``info["episode"]`` (as SB3's ``Monitor``); default
+        ``("is_success",)`` for the tasks of ``grasp_envs``, none for other ids
     :param monitor_file: write every finished episode there, as SB3's ``Monitor`` / ``VecMonitor`` do (learner side)
     :param max_restarts: how often each worker may be restarted after its process or node died during a segment
         (the segment is then collected again by the new worker, whose envs start new episodes); beyond that, or
@@ -619,7 +632,7 @@ class RolloutWorkers(VecEnv):
         sim_threads: int = 1,
         env_kwargs: dict[str, Any] | None = None,
         scripted_starts: dict[str, Any] | None = None,
-        info_keywords: Sequence[str] = ("is_success",),
+        info_keywords: Sequence[str] | None = None,
         monitor_file: str | None = None,
         max_restarts: int = 0,
     ):
@@ -633,9 +646,15 @@ class RolloutWorkers(VecEnv):
             raise ValueError(f"{type(self).__name__}: `seed` must be an int or None, got {seed!r}")
         if not isinstance(env_id, str):
             raise ValueError(f"{type(self).__name__}: `env_id` must be a registered Gymnasium id, got {env_id!r}")
-        import grasp_envs  # noqa: F401  (registers our ids)
+        import grasp_envs
 
-        gym.spec(env_id)  # an unknown id raises gymnasium's error naming it, before any worker starts
+        if info_keywords is None:
+            info_keywords = ("is_success",) if env_id in grasp_envs.ENV_IDS else ()
+
+        module, _, name = env_id.rpartition(":")  # gymnasium's "module:Env-v0": import the module that registers it
+        if module:
+            importlib.import_module(module)
+        gym.spec(name)  # an unknown id raises gymnasium's error naming it, before any worker starts
         self.env_id = env_id
         self.num_workers, self.envs_per_worker = int(num_workers), int(envs_per_worker)
         self.max_restarts = int(max_restarts)
@@ -645,6 +664,7 @@ class RolloutWorkers(VecEnv):
         )  # fmt: skip
         self._base_seed = None if seed is None else int(seed)
         self.restarts = [0] * self.num_workers
+        self._fresh: set[int] = set()  # workers restarted since the last segment: their envs were reset
         self.closed = False
         self._backend = self._make_backend()
         self._blueprint: bytes | None = None
@@ -655,17 +675,26 @@ class RolloutWorkers(VecEnv):
         started: list[int] = []
         try:
             for worker in range(self.num_workers):
+                started.append(worker)  # stopped below if anything fails, itself included
                 try:
                     self._backend.start(worker, self.worker_envs, self._torch_seed(worker))
                 except (_WorkerDied, RemoteTraceback) as error:
                     raise self._error(worker, error) from None
-                started.append(worker)
             descriptions = self._all("describe")
         except BaseException:
             for worker in started:
                 self._backend.stop(worker)
             raise
         first = descriptions[0]
+        if not isinstance(
+            first["observation_space"], spaces.Box | spaces.Discrete | spaces.MultiDiscrete | spaces.MultiBinary
+        ):
+            for worker in started:
+                self._backend.stop(worker)
+            raise ValueError(
+                f"{type(self).__name__}: rollout workers collect array observations; {env_id} observes "
+                f"{type(first['observation_space']).__name__}"
+            )
         self.render_mode = first["render_mode"]
         self.workers = [{key: d[key] for key in ("pid", "host", "node")} for d in descriptions]
         super().__init__(self.num_workers * self.envs_per_worker, first["observation_space"], first["action_space"])
@@ -753,21 +782,35 @@ class RolloutWorkers(VecEnv):
         weights = {name: tensor.detach().cpu().clone() for name, tensor in policy.state_dict().items()}
         order = self._backend.share(SegmentOrder(n_steps, float(gamma), weights, normalizer))
         broadcast = time.perf_counter() - start
-        handles: dict[int, Any] = {
-            worker: self._submit_or_restart(worker, "collect", order) for worker in range(self.num_workers)
-        }
+        handles: dict[int, Any] = {}
         segments: list[Segment | None] = [None] * self.num_workers
+        failure: RolloutWorkerError | None = None
         for worker in range(self.num_workers):
+            try:
+                handles[worker] = self._submit_or_restart(worker, "collect", order)
+            except RolloutWorkerError as error:
+                failure = failure or error
+        for worker in handles:  # every submitted segment is read, so that no reply is left in a pipe
             while segments[worker] is None:
                 try:
                     segments[worker] = self._backend.result(worker, handles[worker])
                 except _WorkerDied as error:
-                    self._restart(worker, error)
-                    handles[worker] = self._submit_or_restart(worker, "collect", order)
+                    try:
+                        self._restart(worker, error)
+                        handles[worker] = self._submit_or_restart(worker, "collect", order)
+                    except RolloutWorkerError as final:
+                        failure = failure or final
+                        break
                 except RemoteTraceback as error:
-                    raise self._error(worker, error) from None
+                    failure = failure or self._error(worker, error)
+                    break
+        if failure is not None:
+            raise failure
         wall = time.perf_counter() - start
         done = [segment for segment in segments if segment is not None]
+        for worker, segment in enumerate(done):
+            segment.restarted = np.full(self.envs_per_worker, worker in self._fresh)
+        self._fresh.clear()
         self.last_timings = {
             "broadcast_s": broadcast,
             "collect_s": wall - broadcast,
@@ -784,25 +827,44 @@ class RolloutWorkers(VecEnv):
                 self._restart(worker, error)
 
     def _restart(self, worker: int, error: _WorkerDied) -> None:
-        """Replace a dead worker by a new one with the same envs, policy and seeds shifted by its restarts."""
-        if self.restarts[worker] >= self.max_restarts:
-            raise RolloutWorkerError(
-                f"{self._describe_worker(worker)} died: {error.cause} (restarted {self.restarts[worker]} times of "
-                f"max_restarts={self.max_restarts})"
-            ) from error
-        self.restarts[worker] += 1
-        self._backend.stop(worker)
-        self._backend.start(worker, self.worker_envs, self._torch_seed(worker + self.num_workers * self.restarts[worker]))
-        (description,) = self._gather([(worker, self._backend.submit(worker, "describe"))])
+        """Replace a dead worker by a new one with the same envs and policy, its envs reset with seeds past the pool's;
+        a replacement that dies too counts as another restart. Raises :class:`RolloutWorkerError` past
+        ``max_restarts`` or when the new worker raises an error."""
+        while True:
+            if self.restarts[worker] >= self.max_restarts:
+                raise RolloutWorkerError(
+                    f"{self._describe_worker(worker)} died: {error.cause} (restarted {self.restarts[worker]} times of "
+                    f"max_restarts={self.max_restarts})"
+                ) from error
+            self.restarts[worker] += 1
+            self._backend.stop(worker)
+            try:
+                self._start_fresh(worker)
+                return
+            except _WorkerDied as died:
+                error = died
+            except RemoteTraceback as raised:
+                raise self._error(worker, raised) from None
+
+    def _start_fresh(self, worker: int) -> None:
+        restarts = self.restarts[worker]
+        self._backend.start(worker, self.worker_envs, self._torch_seed(worker + self.num_workers * restarts))
+        description = self._backend.result(worker, self._backend.submit(worker, "describe"))
         self.workers[worker] = {key: description[key] for key in ("pid", "host", "node")}
         if self._blueprint is not None:
-            self._gather([(worker, self._backend.submit(worker, "set_policy", self._blueprint))])
+            self._backend.result(worker, self._backend.submit(worker, "set_policy", self._blueprint))
         seeds = None
         if self._base_seed is not None:
-            shift = self.num_envs * self.restarts[worker]
-            first = self._base_seed + worker * self.envs_per_worker + shift
+            first = self._base_seed + worker * self.envs_per_worker + self.num_envs * restarts
             seeds = list(range(first, first + self.envs_per_worker))
-        self._gather([(worker, self._backend.submit(worker, "reset", seeds, None))])
+        self._backend.result(worker, self._backend.submit(worker, "reset", seeds, None))
+        self._fresh.add(worker)
+
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """As ``VecEnv.seed``; a restarted worker's envs are later seeded past ``seed + num_envs``."""
+        if seed is not None:
+            self._base_seed = int(seed)
+        return super().seed(seed)
 
     def record_episodes(self, ended: Sequence[tuple[int, dict[str, Any]]]) -> None:
         """Write the episodes of one step's ``(env, info)`` to ``monitor_file`` (the segment path calls it per step)."""
@@ -989,6 +1051,14 @@ class _MonitorWriter:
 
     def close(self) -> None:
         self.writer.close()
+
+
+def buried_rollout_workers(env: VecEnv) -> bool:
+    """Whether a :class:`RolloutWorkers` pool lies under ``env``'s wrappers where :func:`rollout_workers` does not
+    find it (under wrappers other than one ``VecNormalize``)."""
+    while isinstance(env, VecEnvWrapper):
+        env = env.venv
+    return isinstance(env, RolloutWorkers)
 
 
 def rollout_workers(env: VecEnv) -> tuple[RolloutWorkers, VecNormalize | None] | None:

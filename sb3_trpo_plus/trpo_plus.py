@@ -10,6 +10,7 @@ import random
 import tempfile
 import time
 import types
+import warnings
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -46,7 +47,7 @@ from sb3_trpo_plus.replay import (
     importance_weights,
     recompute_advantages,
 )
-from sb3_trpo_plus.rollouts import Normalizer, RolloutWorkers, Segment, rollout_workers
+from sb3_trpo_plus.rollouts import Normalizer, RolloutWorkers, Segment, buried_rollout_workers, rollout_workers
 
 SelfTRPOPlus = TypeVar("SelfTRPOPlus", bound="TRPOPlus")
 
@@ -467,6 +468,7 @@ class TRPOPlus(TRPO):
         self._last_original_obs: np.ndarray | None = None
         self._episode_timesteps: np.ndarray | None = None
         self._rng_states: dict[str, Any] | None = None
+        self._warned_per_step = False
         if _init_setup_model:
             self._setup_model()
 
@@ -531,6 +533,13 @@ class TRPOPlus(TRPO):
         pool = rollout_workers(env)
         if pool is not None:
             return self._collect_segments(pool[0], pool[1], callback, rollout_buffer, n_rollout_steps, recorder)
+        if buried_rollout_workers(env) and not self._warned_per_step:
+            self._warned_per_step = True
+            warnings.warn(
+                f"the rollout workers are wrapped by {type(env).__name__}: TRPOPlus steps them one step at a time "
+                "(no segments, no restarts); wrap them with one VecNormalize at most to collect whole segments",
+                stacklevel=2,
+            )
 
         def record(step: dict[str, Any]) -> None:
             self._record_step(recorder, step)
@@ -569,6 +578,11 @@ class TRPOPlus(TRPO):
         normalizer = Normalizer.of(vec_normalize)
         segment = Segment.concatenate(pool.collect_segments(self.policy, n_rollout_steps, self.gamma, normalizer))  # type: ignore[arg-type]
         n_envs = pool.num_envs
+        restarted = segment.restarted if segment.restarted is not None else np.zeros(n_envs, dtype=bool)
+        if vec_normalize is not None and restarted.any():  # what VecNormalize.reset does for the reset envs
+            if vec_normalize.training and vec_normalize.norm_obs:
+                vec_normalize.obs_rms.update(segment.raw_observations[0][restarted])  # type: ignore[union-attr]
+            vec_normalize.returns[restarted] = 0
         for t in range(n_rollout_steps):
             dones = segment.dones[t]
             infos: list[dict[str, Any]] = [{} for _ in range(n_envs)]
@@ -583,12 +597,8 @@ class TRPOPlus(TRPO):
             if vec_normalize is not None:
                 _update_statistics(vec_normalize, segment.raw_observations[t + 1], segment.raw_rewards[t], dones)
             new_obs = segment.observations[t + 1] if t + 1 < n_rollout_steps else segment.last_observation
-            actions, rewards, values, log_probs = (
-                segment.actions[t],
-                segment.rewards[t],
-                segment.values[t],
-                segment.log_probs[t],
-            )
+            actions, rewards = segment.actions[t], segment.rewards[t]
+            values, log_probs = th.as_tensor(segment.values[t]), th.as_tensor(segment.log_probs[t])
             self.num_timesteps += n_envs
             callback.update_locals(
                 {"new_obs": new_obs, "rewards": rewards, "dones": dones, "infos": infos, "actions": actions,
@@ -601,15 +611,15 @@ class TRPOPlus(TRPO):
             rollout_buffer.add(
                 segment.observations[t],
                 actions,
-                rewards,
+                segment.buffer_rewards[t],
                 segment.episode_starts[t],
-                th.as_tensor(values),
-                th.as_tensor(log_probs),
+                values,
+                log_probs,
             )
             if recorder is not None:
                 recorder.add(
-                    segment.raw_observations[t], actions, log_probs, segment.raw_rewards[t], segment.episode_starts[t],
-                    segment.episode_timesteps[t],
+                    segment.raw_observations[t], actions, segment.log_probs[t], segment.raw_rewards[t],
+                    segment.episode_starts[t], segment.episode_timesteps[t],
                 )  # fmt: skip
                 for idx, terminal, timestep in truncations:
                     recorder.add_truncation(idx, np.asarray(terminal), timestep)
@@ -618,8 +628,6 @@ class TRPOPlus(TRPO):
         self._last_episode_starts = last_dones
         self._last_original_obs = segment.raw_observations[-1]
         self._episode_timesteps = segment.episode_timesteps[-1].copy()
-        if vec_normalize is not None:
-            vec_normalize.old_obs, vec_normalize.old_reward = segment.raw_observations[-1], segment.raw_rewards[-1]
         rollout_buffer.compute_returns_and_advantage(last_values=th.as_tensor(segment.last_values), dones=last_dones)
         if recorder is not None:
             self._current_rollout = recorder.finish(segment.raw_observations[-1], last_dones, segment.episode_timesteps[-1])
@@ -983,7 +991,7 @@ class TRPOPlus(TRPO):
             raise failure from error
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_actor_params"]
+        return [*super()._excluded_save_params(), "_actor_params", "_warned_per_step"]
 
     def save(
         self,
@@ -1067,6 +1075,7 @@ class TRPOPlus(TRPO):
 
 def _update_statistics(vec_normalize: VecNormalize, raw_obs: np.ndarray, raw_rewards: np.ndarray, dones: np.ndarray) -> None:
     """What ``VecNormalize.step_wait`` does to its statistics for one step of raw observations and rewards."""
+    vec_normalize.old_obs, vec_normalize.old_reward = raw_obs, raw_rewards
     if vec_normalize.training:
         if vec_normalize.norm_obs:
             vec_normalize.obs_rms.update(raw_obs)  # type: ignore[union-attr]

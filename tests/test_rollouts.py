@@ -166,40 +166,96 @@ def test_episodes_are_written_to_the_monitor_file(tmp_path) -> None:
     assert rows[1] == "r,l,t,is_success" and len(rows) - 2 == 2 * 2 * SMALL["n_steps"] // 50
 
 
-def _kill_worker_soon(pool: ProcessRollouts, worker: int, delay: float) -> threading.Timer:
+def _kill_worker_soon(pool, worker: int, delay: float) -> threading.Timer:
     pid = pool.workers[worker]["pid"]
     timer = threading.Timer(delay, os.kill, args=(pid, signal.SIGKILL))
     timer.start()
     return timer
 
 
-def test_a_process_worker_killed_mid_segment_is_restarted_and_its_segment_collected_again() -> None:
-    pool = ProcessRollouts("Grasper3D-v7", num_workers=2, envs_per_worker=2, seed=0, max_restarts=1)
+CRASH = "crashing_env:CrashOnce-v0"  # tests/crashing_env.py: its process exits at `at_step`, once per marker file
+
+
+def test_a_process_worker_that_dies_mid_segment_is_restarted_and_its_segment_collected_again(tmp_path) -> None:
+    pool = ProcessRollouts(
+        CRASH, num_workers=2, envs_per_worker=2, seed=0, max_restarts=1,
+        env_kwargs={"marker": str(tmp_path / "crashed"), "at_step": 20},
+    )  # fmt: skip
     try:
-        old_pid = pool.workers[1]["pid"]
+        pids = [worker["pid"] for worker in pool.workers]
         env = VecNormalize(pool)
-        model = TRPOPlus("MlpPolicy", env, seed=0, **{**SMALL, "n_steps": 400})
-        timer = _kill_worker_soon(pool, 1, 0.5)
-        model.learn(400 * pool.num_envs)
-        timer.join()
-        assert pool.restarts == [0, 1] and pool.workers[1]["pid"] != old_pid
-        assert model.num_timesteps == 400 * pool.num_envs
+        model = TRPOPlus("MlpPolicy", env, seed=0, **SMALL)
+        model.learn(2 * SMALL["n_steps"] * pool.num_envs)
+        assert sum(pool.restarts) == 1 and (tmp_path / "crashed").exists()
+        restarted = pool.restarts.index(1)
+        assert pool.workers[restarted]["pid"] != pids[restarted]
+        assert model.num_timesteps == 2 * SMALL["n_steps"] * pool.num_envs
     finally:
         pool.close()
 
 
-def test_a_dead_worker_beyond_its_restarts_names_itself_and_leaves_the_weights() -> None:
-    pool = ProcessRollouts("Grasper3D-v7", num_workers=2, envs_per_worker=2, seed=0)
+def test_a_dead_worker_beyond_its_restarts_names_itself_and_leaves_the_weights(tmp_path) -> None:
+    pool = ProcessRollouts(
+        CRASH, num_workers=2, envs_per_worker=2, seed=0, env_kwargs={"marker": str(tmp_path / "crashed"), "at_step": 20}
+    )
     try:
-        model = TRPOPlus("MlpPolicy", pool, seed=0, **{**SMALL, "n_steps": 400})
+        model = TRPOPlus("MlpPolicy", pool, seed=0, **SMALL)
         before = parameters(model)
-        timer = _kill_worker_soon(pool, 0, 0.5)
-        with pytest.raises(RolloutWorkerError, match=r"ProcessRollouts worker 0 \(pid \d+ .*envs 0-1 \(Grasper3D-v7\) died"):
-            model.learn(2 * 400 * pool.num_envs)
-        timer.join()
+        message = (
+            r"ProcessRollouts worker [01] \(pid \d+ on .*\) stepping envs [0-3]-[0-3] \(crashing_env:CrashOnce-v0\) died: "
+            r"exit code 3 \(restarted 0 times of max_restarts=0\)"
+        )
+        with pytest.raises(RolloutWorkerError, match=message):
+            model.learn(2 * SMALL["n_steps"] * pool.num_envs)
         assert th.equal(before, parameters(model))
     finally:
         pool.close()
+
+
+def test_a_worker_killed_by_a_signal_is_restarted() -> None:
+    pool = ProcessRollouts("Grasper3D-v7", num_workers=1, envs_per_worker=2, seed=0, max_restarts=2)
+    try:
+        old_pid = pool.workers[0]["pid"]
+        model = TRPOPlus("MlpPolicy", pool, seed=0, **{**SMALL, "n_steps": 400})
+        timer = _kill_worker_soon(pool, 0, 0.5)
+        model.learn(2 * 400 * pool.num_envs)
+        timer.join()
+        assert pool.restarts == [1] and pool.workers[0]["pid"] != old_pid
+    finally:
+        pool.close()
+
+
+@pytest.mark.parametrize("env_id", ["Reacher2D-v1", "CartPole-v1"])
+def test_one_worker_collects_what_sb3s_collection_loop_collects(env_id: str) -> None:
+    """One worker, no VecNormalize, the learner's generator seeded as the worker's: the rollout buffer and the replay
+    record equal those of SB3's ``collect_rollouts`` over the same envs (the batched engine for a grasp_envs id,
+    ``make_vec_env``'s DummyVecEnv otherwise; CartPole: discrete actions), time-limit bootstraps included."""
+    from stable_baselines3.common.env_util import make_vec_env
+
+    n_envs, n_steps = 3, 60  # Reacher2D-v1's episodes end by time limit at step 50
+    pool = InProcessRollouts(env_id, num_workers=1, envs_per_worker=n_envs, seed=11)
+    reference = make_batch_env(env_id, n_envs, seed=11) if env_id == "Reacher2D-v1" else make_vec_env(env_id, n_envs, seed=11)
+    collected = []
+    try:
+        for env in (reference, pool):
+            th.manual_seed(0)
+            model = TRPOPlus("MlpPolicy", env, n_steps=n_steps, replay_memory=1, policy_kwargs={"net_arch": [16]})
+            _, callback = model._setup_learn(n_steps * n_envs)
+            th.manual_seed(pool._torch_seed(0))
+            assert model.collect_rollouts(model.env, callback, model.rollout_buffer, n_steps)
+            collected.append((model.rollout_buffer, model._current_rollout))
+    finally:
+        pool.close()
+        reference.close()
+    (buffer_a, record_a), (buffer_b, record_b) = collected
+    for name in ("observations", "actions", "rewards", "episode_starts", "values", "log_probs", "advantages", "returns"):
+        np.testing.assert_array_equal(getattr(buffer_a, name), getattr(buffer_b, name), err_msg=name)
+    for name in ("observations", "actions", "log_probs", "rewards", "episode_starts", "episode_timesteps", "last_observations",
+                 "last_dones", "last_timesteps", "truncated_steps", "terminal_timesteps"):  # fmt: skip
+        np.testing.assert_array_equal(getattr(record_a, name), getattr(record_b, name), err_msg=name)
+    if env_id == "Reacher2D-v1":
+        assert len(record_a.truncated_steps) == n_envs
+        np.testing.assert_array_equal(record_a.terminal_observations, record_b.terminal_observations)
 
 
 def test_an_error_inside_a_worker_surfaces_with_its_traceback() -> None:
@@ -236,3 +292,30 @@ def test_gsde_is_refused_on_workers() -> None:
             model.learn(SMALL["n_steps"] * 2)
     finally:
         pool.close()
+
+
+def test_workers_under_other_wrappers_are_stepped_one_step_at_a_time_with_a_warning() -> None:
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    pool = InProcessRollouts("Reacher2D-v1", num_workers=2, envs_per_worker=1, seed=0)
+    try:
+        model = TRPOPlus("MlpPolicy", VecMonitor(pool), seed=0, **SMALL)
+        with pytest.warns(UserWarning, match="wrapped by VecMonitor: TRPOPlus steps them one step at a time"):
+            model.learn(SMALL["n_steps"] * 2)
+        assert model.num_timesteps == SMALL["n_steps"] * 2
+    finally:
+        pool.close()
+
+
+def test_dict_observations_are_refused_when_the_pool_starts() -> None:
+    import gymnasium as gym
+    from gymnasium import spaces
+
+    class DictObservations(gym.Env):
+        observation_space = spaces.Dict({"x": spaces.Box(-1, 1, (2,))})
+        action_space = spaces.Box(-1, 1, (1,))
+
+    gym.register("DictObservationsForWorkers-v0", entry_point=DictObservations)
+    message = "InProcessRollouts: rollout workers collect array observations; DictObservationsForWorkers-v0 observes Dict"
+    with pytest.raises(ValueError, match=message):
+        InProcessRollouts("DictObservationsForWorkers-v0", num_workers=1, envs_per_worker=1)

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 import torch as th
-from test_rollouts import SMALL, _kill_worker_soon, parameters, train
+from stable_baselines3.common.vec_env import VecNormalize
+from test_rollouts import CRASH, SMALL, _kill_worker_soon, parameters, train
 
 from sb3_trpo_plus import TRPOPlus
 from sb3_trpo_plus.rollouts import InProcessRollouts, RayRollouts, RolloutWorkerError
@@ -16,9 +19,19 @@ pytestmark = pytest.mark.xdist_group("ray")  # one Ray instance at a time on thi
 
 @pytest.fixture(scope="module", autouse=True)
 def local_ray():
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    yield
-    ray.shutdown()
+    # Ray's processes inherit this environment: its workers import crashing_env from tests/
+    tests = os.path.dirname(os.path.abspath(__file__))
+    saved = os.environ.get("PYTHONPATH")
+    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [tests, saved]))
+    try:
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+        yield
+    finally:
+        ray.shutdown()
+        if saved is None:
+            del os.environ["PYTHONPATH"]
+        else:
+            os.environ["PYTHONPATH"] = saved
 
 
 @pytest.mark.parametrize("num_workers", [1, 2])
@@ -37,16 +50,32 @@ def test_ray_workers_train_the_in_process_workers_parameters(num_workers: int) -
     assert (a[1] == b[1]).all() and (a[2] == b[2]).all()
 
 
-def test_a_ray_worker_killed_mid_segment_is_restarted() -> None:
-    pool = RayRollouts("Grasper3D-v7", num_workers=2, envs_per_worker=2, seed=0, max_restarts=2)
+def test_a_ray_worker_that_dies_mid_segment_is_restarted(tmp_path) -> None:
+    pool = RayRollouts(
+        CRASH, num_workers=2, envs_per_worker=2, seed=0, max_restarts=2,
+        env_kwargs={"marker": str(tmp_path / "crashed"), "at_step": 20},
+    )  # fmt: skip
+    try:
+        pids = [worker["pid"] for worker in pool.workers]
+        model = TRPOPlus("MlpPolicy", VecNormalize(pool), seed=0, **SMALL)
+        model.learn(2 * SMALL["n_steps"] * pool.num_envs)
+        assert sum(pool.restarts) == 1 and (tmp_path / "crashed").exists()
+        restarted = pool.restarts.index(1)
+        assert pool.workers[restarted]["pid"] != pids[restarted]
+        assert model.num_timesteps == 2 * SMALL["n_steps"] * pool.num_envs
+    finally:
+        pool.close()
+
+
+def test_a_ray_worker_killed_by_a_signal_is_restarted() -> None:
+    pool = RayRollouts("Grasper3D-v7", num_workers=1, envs_per_worker=2, seed=0, max_restarts=2)
     try:
         old_pid = pool.workers[0]["pid"]
         model = TRPOPlus("MlpPolicy", pool, seed=0, **{**SMALL, "n_steps": 400})
         timer = _kill_worker_soon(pool, 0, 1.0)
-        model.learn(400 * pool.num_envs)
+        model.learn(2 * 400 * pool.num_envs)
         timer.join()
-        assert pool.restarts == [1, 0] and pool.workers[0]["pid"] != old_pid
-        assert model.num_timesteps == 400 * pool.num_envs
+        assert pool.restarts == [1] and pool.workers[0]["pid"] != old_pid
     finally:
         pool.close()
 
