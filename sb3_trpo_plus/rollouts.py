@@ -593,9 +593,6 @@ class _RayBackend(_Backend):
             with contextlib.suppress(Exception):
                 self.ray.kill(actor)
 
-    def pid(self, index: int) -> int:
-        return int(self.ray.get(self.actors[index].describe.remote())["pid"])
-
 
 # ---------------------------------------------------------------------------------------------------- the pools
 class RolloutWorkers(VecEnv):
@@ -619,8 +616,6 @@ class RolloutWorkers(VecEnv):
         (the segment is then collected again by the new worker, whose envs start new episodes); beyond that, or
         when a worker dies while stepped one step at a time, :class:`RolloutWorkerError` names it
     """
-
-    backend_name = "workers"
 
     def __init__(
         self,
@@ -956,16 +951,12 @@ class RolloutWorkers(VecEnv):
 class InProcessRollouts(RolloutWorkers):
     """Rollout workers in the learner's process, collecting one after the other (the reference of the others)."""
 
-    backend_name = "in-process"
-
     def _make_backend(self) -> _Backend:
         return _InProcessBackend()
 
 
 class ProcessRollouts(RolloutWorkers):
     """One local process per rollout worker. ``start_method``: as SB3's ``SubprocVecEnv`` (default forkserver)."""
-
-    backend_name = "process"
 
     def __init__(self, env_id: str, num_workers: int, envs_per_worker: int, *, start_method: str | None = None, **kwargs: Any):
         self._start_method = start_method
@@ -985,8 +976,6 @@ class RayRollouts(RolloutWorkers):
     :param max_restarts: restarts of each worker after its process or node died (default 3)
     :param placement_timeout: seconds to wait for a worker to be placed before raising
     """
-
-    backend_name = "ray"
 
     def __init__(
         self,
