@@ -558,7 +558,8 @@ class _RayBackend(_Backend):
         ready = actor.describe.remote()  # type: ignore[attr-defined]
         done, _ = self.ray.wait([ready], timeout=self.placement_timeout)
         if not done:
-            self.stop(index)
+            with contextlib.suppress(Exception):
+                self.ray.kill(self.actors.pop(index))  # never placed: nothing to close
             raise RolloutWorkerError(
                 f"RayRollouts worker {index} ({envs.n_envs} x {envs.env_id}) was not placed within "
                 f"{self.placement_timeout:.0f} s: no node of the cluster has {self.cpus_per_worker} CPU free "

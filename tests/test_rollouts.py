@@ -319,3 +319,34 @@ def test_dict_observations_are_refused_when_the_pool_starts() -> None:
     message = "InProcessRollouts: rollout workers collect array observations; DictObservationsForWorkers-v0 observes Dict"
     with pytest.raises(ValueError, match=message):
         InProcessRollouts("DictObservationsForWorkers-v0", num_workers=1, envs_per_worker=1)
+
+
+def test_ctrl_c_while_workers_collect_lets_the_segment_finish_and_saves_a_checkpoint(tmp_path) -> None:
+    """SIGINT reaches the learner while it waits for the segments; the process workers ignore it. The segment
+    completes, ``learn`` stops before the update, ``SaveOnInterrupt`` saves, and the same pool resumes the run."""
+    from sb3_trpo_plus.callbacks import SaveOnInterrupt
+
+    pool = ProcessRollouts("Reacher2D-v1", num_workers=2, envs_per_worker=2, seed=0)
+    try:
+        env = VecNormalize(pool)
+        model = TRPOPlus("MlpPolicy", env, seed=0, replay_memory=2, **SMALL)
+        collect = pool.collect_segments
+
+        def interrupted(*args, **kwargs):
+            if model._n_updates == 1:
+                os.kill(os.getpid(), signal.SIGINT)  # handled while the learner waits for the workers
+            return collect(*args, **kwargs)
+
+        pool.collect_segments = interrupted  # type: ignore[method-assign]
+        with pytest.raises(KeyboardInterrupt):
+            model.learn(10_000, callback=SaveOnInterrupt(tmp_path))
+        assert model._n_updates == 1 and all(worker["pid"] for worker in pool.workers)
+        pool.collect_segments = collect  # type: ignore[method-assign]
+        resumed = TRPOPlus.load(
+            tmp_path / "interrupted.zip", env=VecNormalize.load(str(tmp_path / "interrupted_vecnormalize.pkl"), pool)
+        )
+        assert len(resumed.rollout_memory) == 1
+        resumed.learn(SMALL["n_steps"] * pool.num_envs, reset_num_timesteps=False)
+        assert resumed._n_updates == 2 and pool.restarts == [0, 0]
+    finally:
+        pool.close()
