@@ -27,6 +27,7 @@ updates them after every step); the statistics see every raw observation and rew
 
 from __future__ import annotations
 
+import abc
 import contextlib
 import importlib
 import io
@@ -417,24 +418,24 @@ class _WorkerDied(Exception):
         self.cause = cause
 
 
-class _Backend:
+class _Backend(abc.ABC):
     """Starts workers and runs their methods; ``submit`` returns a handle, ``result`` its value."""
 
-    def start(self, index: int, envs: WorkerEnvs, torch_seed: int | None) -> None:
-        raise NotImplementedError
+    @abc.abstractmethod
+    def start(self, index: int, envs: WorkerEnvs, torch_seed: int | None) -> None: ...
 
-    def submit(self, index: int, method: str, *args: Any) -> Any:
-        raise NotImplementedError
+    @abc.abstractmethod
+    def submit(self, index: int, method: str, *args: Any) -> Any: ...
 
-    def result(self, index: int, handle: Any) -> Any:
-        raise NotImplementedError
+    @abc.abstractmethod
+    def result(self, index: int, handle: Any) -> Any: ...
 
     def share(self, value: Any) -> Any:
         """``value`` as the workers' methods take it (Ray puts it in the object store once)."""
         return value
 
-    def stop(self, index: int) -> None:
-        raise NotImplementedError
+    @abc.abstractmethod
+    def stop(self, index: int) -> None: ...
 
 
 class _InProcessBackend(_Backend):
@@ -698,8 +699,9 @@ class RolloutWorkers(VecEnv):
             self.seed(int(seed))
 
     # -- backend plumbing
+    @abc.abstractmethod
     def _make_backend(self) -> _Backend:
-        raise NotImplementedError(f"{type(self).__name__} is abstract: use InProcessRollouts, ProcessRollouts or RayRollouts")
+        """The backend that runs the workers (each subclass has one)."""
 
     def _torch_seed(self, worker: int) -> int | None:
         if self._base_seed is None:

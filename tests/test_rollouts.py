@@ -176,15 +176,15 @@ def _kill_worker_soon(pool, worker: int, delay: float) -> threading.Timer:
 CRASH = "crashing_env:CrashOnce-v0"  # tests/crashing_env.py: its process exits at `at_step`, once per marker file
 
 
-def test_a_process_worker_that_dies_mid_segment_is_restarted_and_its_segment_collected_again(tmp_path) -> None:
-    pool = ProcessRollouts(
+def check_restart_after_a_crash(pool_class, tmp_path) -> None:
+    """One of two workers exits mid-segment: it is replaced, its segment collected again, training completes."""
+    pool = pool_class(
         CRASH, num_workers=2, envs_per_worker=2, seed=0, max_restarts=1,
         env_kwargs={"marker": str(tmp_path / "crashed"), "at_step": 20},
     )  # fmt: skip
     try:
         pids = [worker["pid"] for worker in pool.workers]
-        env = VecNormalize(pool)
-        model = TRPOPlus("MlpPolicy", env, seed=0, **SMALL)
+        model = TRPOPlus("MlpPolicy", VecNormalize(pool), seed=0, **SMALL)
         model.learn(2 * SMALL["n_steps"] * pool.num_envs)
         assert sum(pool.restarts) == 1 and (tmp_path / "crashed").exists()
         restarted = pool.restarts.index(1)
@@ -192,6 +192,23 @@ def test_a_process_worker_that_dies_mid_segment_is_restarted_and_its_segment_col
         assert model.num_timesteps == 2 * SMALL["n_steps"] * pool.num_envs
     finally:
         pool.close()
+
+
+def check_restart_after_a_kill(pool, delay: float) -> None:
+    """SIGKILL to a 1-worker pool's process during a long segment: the worker is replaced and training completes."""
+    try:
+        old_pid = pool.workers[0]["pid"]
+        model = TRPOPlus("MlpPolicy", pool, seed=0, **{**SMALL, "n_steps": 400})
+        timer = _kill_worker_soon(pool, 0, delay)
+        model.learn(2 * 400 * pool.num_envs)
+        timer.join()
+        assert pool.restarts == [1] and pool.workers[0]["pid"] != old_pid
+    finally:
+        pool.close()
+
+
+def test_a_process_worker_that_dies_mid_segment_is_restarted_and_its_segment_collected_again(tmp_path) -> None:
+    check_restart_after_a_crash(ProcessRollouts, tmp_path)
 
 
 def test_a_dead_worker_beyond_its_restarts_names_itself_and_leaves_the_weights(tmp_path) -> None:
@@ -213,16 +230,7 @@ def test_a_dead_worker_beyond_its_restarts_names_itself_and_leaves_the_weights(t
 
 
 def test_a_worker_killed_by_a_signal_is_restarted() -> None:
-    pool = ProcessRollouts("Grasper3D-v7", num_workers=1, envs_per_worker=2, seed=0, max_restarts=2)
-    try:
-        old_pid = pool.workers[0]["pid"]
-        model = TRPOPlus("MlpPolicy", pool, seed=0, **{**SMALL, "n_steps": 400})
-        timer = _kill_worker_soon(pool, 0, 0.5)
-        model.learn(2 * 400 * pool.num_envs)
-        timer.join()
-        assert pool.restarts == [1] and pool.workers[0]["pid"] != old_pid
-    finally:
-        pool.close()
+    check_restart_after_a_kill(ProcessRollouts("Grasper3D-v7", num_workers=1, envs_per_worker=2, seed=0, max_restarts=2), 0.5)
 
 
 @pytest.mark.parametrize("env_id", ["Reacher2D-v1", "CartPole-v1"])

@@ -6,8 +6,7 @@ import os
 
 import pytest
 import torch as th
-from stable_baselines3.common.vec_env import VecNormalize
-from test_rollouts import CRASH, SMALL, _kill_worker_soon, parameters, train
+from test_rollouts import check_restart_after_a_crash, check_restart_after_a_kill, parameters, train
 
 from sb3_trpo_plus import TRPOPlus
 from sb3_trpo_plus.rollouts import InProcessRollouts, RayRollouts, RolloutWorkerError
@@ -51,33 +50,11 @@ def test_ray_workers_train_the_in_process_workers_parameters(num_workers: int) -
 
 
 def test_a_ray_worker_that_dies_mid_segment_is_restarted(tmp_path) -> None:
-    pool = RayRollouts(
-        CRASH, num_workers=2, envs_per_worker=2, seed=0, max_restarts=2,
-        env_kwargs={"marker": str(tmp_path / "crashed"), "at_step": 20},
-    )  # fmt: skip
-    try:
-        pids = [worker["pid"] for worker in pool.workers]
-        model = TRPOPlus("MlpPolicy", VecNormalize(pool), seed=0, **SMALL)
-        model.learn(2 * SMALL["n_steps"] * pool.num_envs)
-        assert sum(pool.restarts) == 1 and (tmp_path / "crashed").exists()
-        restarted = pool.restarts.index(1)
-        assert pool.workers[restarted]["pid"] != pids[restarted]
-        assert model.num_timesteps == 2 * SMALL["n_steps"] * pool.num_envs
-    finally:
-        pool.close()
+    check_restart_after_a_crash(RayRollouts, tmp_path)
 
 
 def test_a_ray_worker_killed_by_a_signal_is_restarted() -> None:
-    pool = RayRollouts("Grasper3D-v7", num_workers=1, envs_per_worker=2, seed=0, max_restarts=2)
-    try:
-        old_pid = pool.workers[0]["pid"]
-        model = TRPOPlus("MlpPolicy", pool, seed=0, **{**SMALL, "n_steps": 400})
-        timer = _kill_worker_soon(pool, 0, 1.0)
-        model.learn(2 * 400 * pool.num_envs)
-        timer.join()
-        assert pool.restarts == [1] and pool.workers[0]["pid"] != old_pid
-    finally:
-        pool.close()
+    check_restart_after_a_kill(RayRollouts("Grasper3D-v7", num_workers=1, envs_per_worker=2, seed=0, max_restarts=2), 1.0)
 
 
 def test_an_error_inside_a_ray_worker_surfaces_with_its_traceback() -> None:
