@@ -349,13 +349,12 @@ class RolloutWorker:
         log_probs_out = np.zeros((n_steps, n_envs), dtype=np.float32)
         ended: list[list[tuple[int, dict[str, Any]]]] = []
         obs = norm.obs(raw) if norm is not None else raw
-        with self._own_generator():
+        with self._own_generator(), th.inference_mode():  # one grad-free context for the whole segment
             for t in range(n_steps):
                 raw_observations[t] = raw
                 episode_starts[t] = self._episode_starts
                 episode_timesteps[t] = self._timesteps
-                with th.no_grad():
-                    actions_t, values, log_probs = policy(obs_as_tensor(obs, policy.device))
+                actions_t, values, log_probs = policy(obs_as_tensor(obs, policy.device))
                 actions = actions_t.cpu().numpy()
                 clipped = actions
                 if isinstance(action_space, spaces.Box):
@@ -375,8 +374,7 @@ class RolloutWorker:
                     if terminal is not None and info.get("TimeLimit.truncated", False):
                         terminal_input = norm.obs(terminal) if norm is not None else terminal
                         terminal_obs = policy.obs_to_tensor(terminal_input)[0]
-                        with th.no_grad():
-                            terminal_value = policy.predict_values(terminal_obs)[0]  # type: ignore[arg-type]
+                        terminal_value = policy.predict_values(terminal_obs)[0]  # type: ignore[arg-type]
                         bootstrapped[idx] += order.gamma * terminal_value
                     done_infos.append((int(idx), info))
                 if observations is None:
@@ -395,8 +393,7 @@ class RolloutWorker:
                 self._advance(new_raw, dones)
                 raw = new_raw
                 obs = norm.obs(raw) if norm is not None else raw
-            with th.no_grad():
-                last_values = policy.predict_values(obs_as_tensor(obs, policy.device)).cpu().numpy().flatten()  # type: ignore[arg-type]
+            last_values = policy.predict_values(obs_as_tensor(obs, policy.device)).cpu().numpy().flatten()  # type: ignore[arg-type]
         raw_observations[n_steps] = raw
         episode_timesteps[n_steps] = self._timesteps
         assert observations is not None and actions_out is not None

@@ -468,7 +468,6 @@ class TRPOPlus(TRPO):
         self._last_original_obs: np.ndarray | None = None
         self._episode_timesteps: np.ndarray | None = None
         self._rng_states: dict[str, Any] | None = None
-        self._warned_per_step = False
         if _init_setup_model:
             self._setup_model()
 
@@ -533,8 +532,7 @@ class TRPOPlus(TRPO):
         pool = rollout_workers(env)
         if pool is not None:
             return self._collect_segments(pool[0], pool[1], callback, rollout_buffer, n_rollout_steps, recorder)
-        if buried_rollout_workers(env) and not self._warned_per_step:
-            self._warned_per_step = True
+        if buried_rollout_workers(env):  # shown once per program by Python's default warning filter
             warnings.warn(
                 f"the rollout workers are wrapped by {type(env).__name__}: TRPOPlus steps them one step at a time "
                 "(no segments, no restarts); wrap them with one VecNormalize at most to collect whole segments",
@@ -991,7 +989,7 @@ class TRPOPlus(TRPO):
             raise failure from error
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_actor_params", "_warned_per_step"]
+        return [*super()._excluded_save_params(), "_actor_params"]
 
     def save(
         self,
