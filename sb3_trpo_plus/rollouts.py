@@ -970,7 +970,7 @@ class RayRollouts(RolloutWorkers):
     """One Ray actor per rollout worker, spread over the cluster's nodes (``SPREAD`` scheduling).
 
     Connects to the running Ray cluster (``address``, else the ``RAY_ADDRESS`` environment variable) or, when there
-    is none, starts Ray on this machine; a Ray session that is already initialised is used as it is.
+    is none, starts a local Ray instance; a Ray session that is already initialised is used as it is.
 
     :param cpus_per_worker: CPUs each actor reserves (Ray places a worker on a node with that many free)
     :param max_restarts: restarts of each worker after its process or node died (default 3)
