@@ -1,7 +1,9 @@
 """A study variant's envs and model on an env: what the runner, the protocol and the diagnostic scripts build.
 
-Training envs: the variant's env kwargs, wrapped in its ``train_wrappers`` (rl-zoo's env_wrapper form), VecNormalize
-where the zoo settings ask for it. Evaluation envs: the same env kwargs and never the training wrappers.
+Training envs: the variant's env kwargs, wrapped in its training wrappers (``study.train_wrappers``: the variant's
+``train_wrappers``, else the zoo entry's ``env_wrapper``), VecNormalize where the zoo settings ask for it. Evaluation
+envs: the same env kwargs and never the training wrappers. Model: the variant's class and zoo settings; a
+``zero_cg_start`` variant's sb3-contrib TRPO starts its conjugate gradient at 0 (``zero_start_solver``).
 """
 
 from __future__ import annotations
@@ -9,9 +11,12 @@ from __future__ import annotations
 import argparse
 import importlib
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from benchmarks.study import VARIANTS, ModelSettings, Variant, settings
+from benchmarks.study import VARIANTS, ModelSettings, Variant, settings, train_wrappers
+
+if TYPE_CHECKING:
+    import torch as th
 
 
 def model_settings(env_id: str, variant: str) -> ModelSettings:
@@ -19,10 +24,10 @@ def model_settings(env_id: str, variant: str) -> ModelSettings:
     return settings(VARIANTS[variant], env_id)
 
 
-def train_wrapper_class(variant: str) -> Callable[[Any], Any] | None:
-    """One callable that wraps a training env in the variant's ``train_wrappers``, in their order (rl-zoo's
-    ``get_wrapper_class`` of an ``env_wrapper`` list); None without any."""
-    wrappers = VARIANTS[variant].train_wrappers
+def train_wrapper_class(env_id: str, variant: str) -> Callable[[Any], Any] | None:
+    """One callable that wraps a training env of ``env_id`` in the variant's training wrappers (``study.train_wrappers``),
+    in their order (rl-zoo's ``get_wrapper_class`` of an ``env_wrapper`` list); None without any."""
+    wrappers = train_wrappers(VARIANTS[variant], env_id)
     if not wrappers:
         return None
     from rl_zoo3.utils import get_wrapper_class
@@ -42,7 +47,7 @@ def training_envs(
 
     config = model_settings(env_id, variant)
     kwargs: dict[str, Any] = dict(
-        n_envs=config.n_envs, seed=seed, env_kwargs=config.env_kwargs, wrapper_class=train_wrapper_class(variant),
+        n_envs=config.n_envs, seed=seed, env_kwargs=config.env_kwargs, wrapper_class=train_wrapper_class(env_id, variant),
         monitor_kwargs=monitor_kwargs,
     )  # fmt: skip
     if vec_env == "batch":
@@ -92,6 +97,28 @@ def _algorithm_class(variant: Variant) -> Any:
     from sb3_trpo_plus.zoo import algorithms
 
     return algorithms()[variant.algo]
+
+
+def zero_start_solver(
+    matrix_vector_dot_fn: Callable[[th.Tensor], th.Tensor], b: th.Tensor, max_iter: int = 10, residual_tol: float = 1e-10
+) -> th.Tensor:
+    """sb3-contrib's conjugate gradient solver started at 0 instead of 1e-4 * randn (no draw from torch's generator)."""
+    import torch as th
+    from sb3_contrib.common.utils import conjugate_gradient_solver
+
+    randn_like = th.randn_like
+    th.randn_like = th.zeros_like  # type: ignore[assignment]
+    try:
+        return conjugate_gradient_solver(matrix_vector_dot_fn, b, max_iter=max_iter, residual_tol=residual_tol)
+    finally:
+        th.randn_like = randn_like  # type: ignore[assignment]
+
+
+def use_zero_start_in_sb3_contrib_trpo() -> None:
+    """Make sb3-contrib's TRPO (in this process) start its conjugate gradient at 0 (variants with ``zero_cg_start``)."""
+    import sb3_contrib.trpo.trpo as sb3_contrib_trpo
+
+    sb3_contrib_trpo.conjugate_gradient_solver = zero_start_solver  # type: ignore[assignment]
 
 
 def add_run_arguments(parser: argparse.ArgumentParser, env_id: str, variant: str) -> None:

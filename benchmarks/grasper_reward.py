@@ -23,31 +23,15 @@ from typing import Any
 import numpy as np
 import torch as th
 from sb3_contrib import TRPO
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 from torch import nn
 
 import grasp_envs  # noqa: F401
 from sb3_trpo_plus import TRPOPlus
+from sb3_trpo_plus.callbacks import EpisodeStats
 
 ALGOS: dict[str, type[TRPO]] = {"trpo": TRPO, "trpo_plus": TRPOPlus}
-
-
-class EpisodeStats(BaseCallback):
-    """Collects (return, success, length) of every finished training episode."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.episodes: list[tuple[float, bool, int]] = []
-
-    def _on_step(self) -> bool:
-        for info, done in zip(self.locals["infos"], self.locals["dones"], strict=True):
-            if done and "episode" in info:
-                self.episodes.append(
-                    (float(info["episode"]["r"]), bool(info.get("is_success", False)), int(info["episode"]["l"]))
-                )
-        return True
 
 
 def main() -> None:

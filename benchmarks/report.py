@@ -31,6 +31,7 @@ from benchmarks.protocol import (
 from benchmarks.runs import job_folder, read_progress, read_reevaluation
 from benchmarks.study import (
     BUDGETS,
+    COMPARISONS,
     LABELS,
     ROOT,
     STUDY_VARIANTS,
@@ -42,14 +43,6 @@ from benchmarks.study import (
 )
 
 BEGIN, END = "<!-- convergence-report:begin -->", "<!-- convergence-report:end -->"
-# why does the combination hurt? each diagnosis variant against the variant it changes (docs/results.md)
-# and is plain TRPOPlus better than sb3-contrib TRPO, or than the same algorithm with another random stream?
-# (all of these ran on Reacher2D-v1 with gamma 0.99); and the zoo's discount 0.98 against 0.99
-DIAGNOSIS_PAIRS = [
-    ("both_cg5", "both_g099"), ("replay_g099", "replay_cg25"), ("both_cg5", "replay_g099"), ("both_cg5", "warm_g099"),
-    ("plain_g099", "trpo_cg0"), ("trpo_cg0", "trpo_g099"), ("warm", "warm_g099"), ("warm", "ppo_g099"),
-    ("ppo", "ppo_g099"), ("plain", "plain_g099"), ("trpo", "trpo_g099"),
-]  # fmt: skip
 AGENT_EPISODES = 20
 BOOTSTRAP_SEED = 0
 # the reset seed of the shipped agents' AGENT_EPISODES-episode evaluation, also the first reset seed of the 100-episode
@@ -272,7 +265,7 @@ def rliable_section(
     """
     from rliable import metrics
 
-    variants = STUDY_VARIANTS  # the extra diagnosis variants ran on one env only
+    variants = STUDY_VARIANTS  # the extra diagnosis variants have runs on one env only
     envs = [env for env in all_runs if min(len(all_runs[env].get(v, {})) for v in variants) >= min_seeds]  # finished
     if not envs:
         return [f"No env has {min_seeds} finished seeds of every variant yet."]
@@ -359,7 +352,8 @@ def write_report(out: Path, docs: Path) -> None:
     body += ["### Aggregate (rliable)", "", *rliable_section(all_runs), ""]
     for env_id, runs in all_runs.items():  # the envs with 10 seeds of every study variant, on their own
         if min(len(runs.get(v, {})) for v in STUDY_VARIANTS) >= 10:
-            section = rliable_section({env_id: runs}, min_seeds=10, extra_pairs=DIAGNOSIS_PAIRS)
+            pairs = [(comparison.variant, comparison.baseline) for comparison in COMPARISONS]  # study.yml's
+            section = rliable_section({env_id: runs}, min_seeds=10, extra_pairs=pairs)
             body += [f"#### {env_id}, 10 seeds", "", *section, ""]
     body += agents_section(ROOT / "trained_agents" / "agents.json")
     text = docs.read_text()
@@ -403,7 +397,9 @@ def agents_section(manifest_path: Path) -> list[str]:
         )
     for env_id, entry in sorted(manifest.items()):
         if "video" in entry:
-            lines += ["", f"{env_id}:", "", f'<video src="{entry["video"]}" controls loop muted width="360"></video>']
+            kwargs = ", ".join(f"`{key}={value!r}`" for key, value in entry.get("env_kwargs", {}).items())
+            title = f"{env_id} ({kwargs})" if kwargs else env_id  # the env the agent was trained and filmed on
+            lines += ["", f"{title}:", "", f'<video src="{entry["video"]}" controls loop muted width="360"></video>']
     return [*lines, ""]
 
 

@@ -17,7 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.builders import algorithm_class, evaluation_env, model_settings, training_envs
+from benchmarks.builders import (
+    algorithm_class,
+    evaluation_env,
+    model_settings,
+    training_envs,
+    use_zero_start_in_sb3_contrib_trpo,
+)
 from benchmarks.protocol import EVAL_EPISODES, EVAL_SEED, evaluate
 from benchmarks.runs import DIAGNOSTICS, append_row, atomic_replace, job_folder, keep_checkpoint, read_progress
 from benchmarks.study import BUDGETS, VARIANTS
@@ -38,12 +44,10 @@ def run_job(
     from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from benchmarks.grasper_reward import EpisodeStats
+    from sb3_trpo_plus.callbacks import EpisodeStats
 
     th.set_num_threads(1)
     if VARIANTS[variant].zero_cg_start:
-        from benchmarks.trpo_divergence import use_zero_start_in_sb3_contrib_trpo
-
         use_zero_start_in_sb3_contrib_trpo()
     folder = job_folder(out, env_id, variant, seed)
     folder.mkdir(parents=True, exist_ok=True)

@@ -1,8 +1,8 @@
-"""The convergence study's configuration: its envs and variants, read from benchmarks/study.yml.
+"""The convergence study's configuration: its envs, variants and comparisons, read from benchmarks/study.yml.
 
 A variant is the zoo hyperparameters of its algorithm (zoo_hyperparams/<algo>.yml) on an env with the variant's
-overrides on top; ``settings`` resolves them, ``load_study`` reads and checks the YAML. Nothing here depends on the
-other modules of the study.
+overrides on top; ``settings`` and ``train_wrappers`` resolve them, ``load_study`` reads and checks the YAML. Nothing
+here depends on the other modules of the study.
 """
 
 from __future__ import annotations
@@ -60,9 +60,17 @@ class Variant:
     algo: str
     hyperparameters: dict[str, Any] = field(default_factory=dict)
     env_kwargs: dict[str, Any] | None = None
-    train_wrappers: list[dict[str, dict[str, Any]]] = field(default_factory=list)
+    train_wrappers: list[dict[str, dict[str, Any]]] | None = None  # None: the zoo entry's env_wrapper
     algo_class: str | None = None
     zero_cg_start: bool = False
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """A probability of improvement the report shows beside the study variants': P(``variant`` > ``baseline``)."""
+
+    variant: str
+    baseline: str
 
 
 @dataclass(frozen=True)
@@ -70,6 +78,7 @@ class Study:
     envs: dict[str, EnvSettings]
     variants: dict[str, Variant]
     study_variants: list[str]
+    comparisons: list[Comparison] = field(default_factory=list)
 
 
 class StudyError(ValueError):
@@ -84,7 +93,16 @@ def load_study(path: str | Path = STUDY_FILE) -> Study:
     study_variants = list(data["study_variants"])
     if unknown := [name for name in study_variants if name not in variants]:
         raise StudyError(f"{path}: study_variants names no variant {unknown}")
-    return Study(envs, variants, study_variants)
+    comparisons = [_comparison(entry, variants, path) for entry in data.get("comparisons") or []]
+    return Study(envs, variants, study_variants, comparisons)
+
+
+def _comparison(entry: Any, variants: Mapping[str, Variant], path: str | Path) -> Comparison:
+    if not isinstance(entry, Mapping) or set(entry) != {"variant", "baseline"}:
+        raise StudyError(f"{path}: a comparison is {{variant: <name>, baseline: <name>}}, got {entry!r}")
+    if unknown := [name for name in (entry["variant"], entry["baseline"]) if name not in variants]:
+        raise StudyError(f"{path}: comparison {entry!r} names no variant {unknown}")
+    return Comparison(entry["variant"], entry["baseline"])
 
 
 def _env_settings(env_id: str, settings: Mapping[str, Any]) -> EnvSettings:
@@ -123,8 +141,8 @@ def _variant(name: str, entry: Mapping[str, Any]) -> Variant:
     env_kwargs = entry.get("env_kwargs")
     if env_kwargs is not None and not isinstance(env_kwargs, dict):
         raise fail(f"env_kwargs must be a mapping, got {env_kwargs!r}")
-    wrappers = entry.get("train_wrappers") or []
-    if not isinstance(wrappers, list) or not all(_is_wrapper_entry(w) for w in wrappers):
+    wrappers = entry.get("train_wrappers")  # absent: the zoo entry's env_wrapper; [] for none
+    if wrappers is not None and (not isinstance(wrappers, list) or not all(_is_wrapper_entry(w) for w in wrappers)):
         raise fail(f"train_wrappers must be a list of {{module.Class: {{kwargs}}}}, got {wrappers!r}")
     algo_class = entry.get("algo_class")
     if algo_class is not None and (not isinstance(algo_class, str) or "." not in algo_class):
@@ -166,6 +184,7 @@ TARGETS = {env_id: env.target for env_id, env in ENVS.items()}
 TARGET_WITHIN = {env_id: env.target_within for env_id, env in ENVS.items()}
 TARGET_HELD = {env_id for env_id, env in ENVS.items() if env.target_held}
 LABELS = {name: variant.label for name, variant in VARIANTS.items()}
+COMPARISONS = STUDY.comparisons
 
 
 # ---------------------------------------------------------------------------------------------- settings
@@ -207,6 +226,24 @@ def settings(variant: Variant, env_id: str) -> ModelSettings:
         params.pop(key, None)
     env_kwargs = dict(params.pop("env_kwargs", None) or {})  # the evaluation envs' (and, under the wrappers, training)
     return ModelSettings(params, n_envs, normalize_kwargs(normalize, params), policy, env_kwargs)
+
+
+def train_wrappers(variant: Variant, env_id: str) -> list[Any]:
+    """The Gymnasium wrappers of ``variant``'s training envs on ``env_id``, in rl-zoo's ``env_wrapper`` form: the
+    variant's ``train_wrappers`` where it sets them (``[]``: none), else the zoo entry's ``env_wrapper`` (the recipe's
+    training aids, such as ``Grasper3D-v7``'s scripted starts), refused where it holds a wrapper that is not a training
+    aid: rl-zoo3 would wrap the evaluation envs with that one too, and the study's evaluation envs carry none."""
+    if variant.train_wrappers is not None:
+        return list(variant.train_wrappers)
+    from sb3_trpo_plus.zoo import evaluation_wrappers
+
+    inherited = list(hyperparameters(variant, env_id).get("env_wrapper") or [])
+    if evaluated := evaluation_wrappers(inherited):  # the study's evaluation envs carry no wrapper
+        raise StudyError(
+            f"variant {variant.name} on {env_id}: the zoo's env_wrapper {evaluated} would wrap evaluation envs too; "
+            "set the variant's train_wrappers"
+        )
+    return inherited
 
 
 def normalize_kwargs(normalize: bool | dict[str, Any], params: Mapping[str, Any]) -> dict[str, Any] | None:

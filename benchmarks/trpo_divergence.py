@@ -6,43 +6,22 @@
 Both models are built with the zoo settings of the env (zoo_hyperparams/trpo.yml and trpo_plus.yml, the
 same values) and the same seed, so they start with the same weights and collect the same first rollout.
 sb3-contrib's conjugate gradient starts at 1e-4 * randn, a draw from torch's global generator that
-TRPOPlus does not make; here it starts at 0 (``zero_start_solver``), which removes the algorithms' only
-difference except floating-point rounding (analytic Fisher products against double backpropagation).
-The script prints the relative distance ||θ_TRPO - θ_TRPOPlus|| / ||θ_TRPO|| of the policy parameters
-after each update. The convergence study's variant ``trpo_cg0`` trains with the same solver.
-
-The solver needs nothing but torch and sb3-contrib; the study is imported only where a function uses it.
+TRPOPlus does not make; here it starts at 0 (``benchmarks.builders.zero_start_solver``), which removes the
+algorithms' only difference except floating-point rounding (analytic Fisher products against double
+backpropagation). The script prints the relative distance ||θ_TRPO - θ_TRPOPlus|| / ||θ_TRPO|| of the policy
+parameters after each update. The convergence study's variant ``trpo_cg0`` trains with the same solver.
 """
 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 import torch as th
 
-
-def zero_start_solver(
-    matrix_vector_dot_fn: Callable[[th.Tensor], th.Tensor], b: th.Tensor, max_iter: int = 10, residual_tol: float = 1e-10
-) -> th.Tensor:
-    """sb3-contrib's conjugate gradient solver started at 0 instead of 1e-4 * randn (no draw from torch's generator)."""
-    from sb3_contrib.common.utils import conjugate_gradient_solver
-
-    randn_like = th.randn_like
-    th.randn_like = th.zeros_like  # type: ignore[assignment]
-    try:
-        return conjugate_gradient_solver(matrix_vector_dot_fn, b, max_iter=max_iter, residual_tol=residual_tol)
-    finally:
-        th.randn_like = randn_like  # type: ignore[assignment]
-
-
-def use_zero_start_in_sb3_contrib_trpo() -> None:
-    """Make sb3-contrib's TRPO (in this process) start its conjugate gradient at 0."""
-    import sb3_contrib.trpo.trpo as sb3_contrib_trpo
-
-    sb3_contrib_trpo.conjugate_gradient_solver = zero_start_solver  # type: ignore[assignment]
+from benchmarks.builders import new_model, use_zero_start_in_sb3_contrib_trpo
 
 
 def _flat_parameters(model: Any) -> np.ndarray:
@@ -51,8 +30,6 @@ def _flat_parameters(model: Any) -> np.ndarray:
 
 def _model(algo: str, env_id: str, seed: int, env: Any = None) -> Any:
     """A model with the zoo settings of ``algo`` on ``env_id`` (TRPOPlus: plain), on ``env`` or a new seeded env."""
-    from benchmarks.builders import new_model
-
     variant = "plain" if algo == "trpo_plus" else algo  # the study's plain TRPOPlus / sb3-contrib TRPO
     return new_model(env_id, variant, seed, env)
 

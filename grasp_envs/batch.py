@@ -10,8 +10,9 @@ definition (``grasp_envs.base.ArmTask``) that the Gymnasium env runs as a batch 
 from __future__ import annotations
 
 import inspect
+import os
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -27,6 +28,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 from grasp_envs.base import SIM_FIELDS, ArmEnv, ArmTask, SimArrays, info_of, infos_of
+from grasp_envs.proximity import ContactScreen
 
 # MjData fields that are state (bound as live views); the others are derived, refreshed by each batch call
 _STATE_FIELDS = ("qpos", "qvel", "ctrl", "mocap_pos")
@@ -34,10 +36,49 @@ _STATE_FIELDS = ("qpos", "qvel", "ctrl", "mocap_pos")
 _RENDER_ARGUMENTS = ("render_mode", "width", "height", "camera_id", "camera_name", "max_geom", "visual_options")
 
 
-def _check_count(name: str, value: Any, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def _is_keywords(value: Any) -> bool:
+    return isinstance(value, dict) and all(isinstance(key, str) for key in value)
+
+
+def _is_scripted_starts_class(value: Any) -> bool:
+    from grasp_envs.wrappers import ScriptedStarts
+
+    return value is None or value is ScriptedStarts
+
+
+# What each argument of BatchVecEnv and make_batch_env accepts, and that requirement in words. Booleans are bool only,
+# integers never bool or float, info keys a list or tuple of str (one str would be a sequence of characters).
+_ARGUMENT_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "env_id": (lambda value: isinstance(value, str), "a registered id of grasp_envs (str)"),
+    "n_envs": (lambda value: _is_int(value) and value >= 1, "an integer >= 1"),
+    "n_threads": (lambda value: _is_int(value) and value >= 0, "an integer >= 0"),
+    "seed": (lambda value: value is None or (_is_int(value) and value >= 0), "None or an integer >= 0"),
+    "scripted_starts": (lambda value: value is None or _is_keywords(value), "None or a dict of ScriptedStarts' arguments"),
+    "wrapper_class": (
+        _is_scripted_starts_class,
+        "None or grasp_envs.wrappers.ScriptedStarts (the batched engine runs no per-env Gymnasium wrappers; "
+        "wrap the VecEnv with VecEnv wrappers instead)",
+    ),
+    "wrapper_kwargs": (lambda value: value is None or _is_keywords(value), "None or a dict of the wrapper's arguments"),
+    "monitor": (lambda value: isinstance(value, bool), "a bool (True or False)"),
+    "monitor_file": (lambda value: value is None or isinstance(value, str | os.PathLike), "None or a file path"),
+    "info_keywords": (
+        lambda value: isinstance(value, list | tuple) and all(isinstance(key, str) for key in value),
+        "a list or tuple of str (not one str)",
+    ),
+}
+
+
+def _check_arguments(**arguments: Any) -> None:
+    """Raise ``ValueError`` naming the first argument that breaks its rule in ``_ARGUMENT_RULES``, and its value."""
+    for name, value in arguments.items():
+        accepts, requirement = _ARGUMENT_RULES[name]
+        if not accepts(value):
+            raise ValueError(f"{name} must be {requirement}, got {value!r}")
 
 
 class BatchVecEnv(VecEnv):
@@ -56,6 +97,9 @@ class BatchVecEnv(VecEnv):
     with the return, the length, the time and ``info_keywords``; rows in ``monitor_file`` when given), so that the
     VecEnv wrappers above it are the same as above a ``DummyVecEnv`` of monitored envs (``sync_envs_normalization``
     between a training and an evaluation env needs that) and ``env_is_wrapped(Monitor)`` is true.
+
+    Every argument is checked before the simulations are built: a value of the wrong type or out of range raises
+    ``ValueError`` naming the argument and the value (the task's options are checked by the task).
 
     :param env_id: a registered id of ``grasp_envs`` (``grasp_envs.ENV_IDS``)
     :param n_envs: number of simulations
@@ -99,12 +143,15 @@ class BatchVecEnv(VecEnv):
         n_threads: int = 1,
         scripted_starts: dict[str, Any] | None = None,
         monitor: bool = False,
-        monitor_file: str | None = None,
-        info_keywords: Iterable[str] = (),
+        monitor_file: str | os.PathLike[str] | None = None,
+        info_keywords: Sequence[str] = (),
         **options: Any,
     ):
-        n_envs = _check_count("n_envs", n_envs, 1)
-        n_threads = _check_count("n_threads", n_threads, 0)
+        _check_arguments(
+            env_id=env_id, n_envs=n_envs, n_threads=n_threads, scripted_starts=scripted_starts, monitor=monitor,
+            monitor_file=monitor_file, info_keywords=info_keywords,
+        )  # fmt: skip
+        n_envs, n_threads = int(n_envs), int(n_threads)
         spec = gym.spec(env_id)
         env_class = load_env_creator(spec.entry_point) if isinstance(spec.entry_point, str) else spec.entry_point
         if not (isinstance(env_class, type) and issubclass(env_class, ArmEnv)):
@@ -137,6 +184,9 @@ class BatchVecEnv(VecEnv):
         self._snapshot = {name: array.copy() for name, array in self._derived.items()}
         self._contacts = np.zeros((n_envs, len(self.task.contact_pairs)))
         self._contact_data = mujoco.MjData(model)
+        self._screen: ContactScreen = ContactScreen(
+            model, [(self.task.geom_id(a), self.task.geom_id(b)) for a, b in self.task.contact_pairs]
+        )
         arrays = {**self._state, **self._snapshot}
         self.sim = SimArrays(model, arrays, self.batch.warning[..., 1], contacts=self._contacts)
         self._scripted = self._check_scripted_starts(scripted_starts)
@@ -156,7 +206,7 @@ class BatchVecEnv(VecEnv):
             if not monitor:
                 raise ValueError("monitor_file needs monitor=True")
             header = {"t_start": self._t_start, "env_id": env_id}
-            self._results_writer = ResultsWriter(monitor_file, header=header, extra_keys=self._info_keywords)
+            self._results_writer = ResultsWriter(os.fspath(monitor_file), header=header, extra_keys=self._info_keywords)
         self._renderers: dict[int, Any] = {}  # one per simulation, as each Gymnasium env has its own camera state
         self._render_data: mujoco.MjData | None = None
 
@@ -169,12 +219,16 @@ class BatchVecEnv(VecEnv):
             else:
                 self._snapshot[name][ids] = array[ids]
         if self.task.contact_pairs:  # the contact list has no batched binding: read each simulation's MjData
-            rows = range(self.num_envs) if ids is None else ids
-            data, geoms = self._contact_data, []
-            for i in rows:
-                self.batch.get_data(int(i), data)
-                geoms.append(data.contact.geom[: data.ncon].copy())
-            self._contacts[list(rows)] = self.task.count_contact_lists(geoms)
+            rows = np.arange(self.num_envs) if ids is None else np.asarray(ids)
+            self._contacts[rows] = 0.0
+            # only where a counted pair may touch: the others' lists hold no counted contact
+            rows = rows[self._screen.may_touch(self._snapshot["geom_xpos"][rows], self._snapshot["geom_xmat"][rows])]
+            if len(rows):
+                data, geoms = self._contact_data, []
+                for i in rows:
+                    self.batch.get_data(int(i), data)
+                    geoms.append(data.contact.geom[: data.ncon].copy())
+                self._contacts[rows] = self.task.count_contact_lists(geoms)
 
     def _physics_step(self, ids: NDArray[np.int64] | None, ctrl: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Step ``ids`` (all: ``None``) with ``ctrl``; reset and report those that became unstable."""
@@ -424,8 +478,8 @@ def make_batch_env(
     wrapper_class: Any = None,
     wrapper_kwargs: dict[str, Any] | None = None,
     monitor: bool = True,
-    info_keywords: Iterable[str] = ("is_success",),
-    monitor_file: str | None = None,
+    info_keywords: Sequence[str] = ("is_success",),
+    monitor_file: str | os.PathLike[str] | None = None,
     **options: Any,
 ) -> BatchVecEnv:
     """``n_envs`` simulations of ``env_id`` in one batched SB3 ``VecEnv`` (``BatchVecEnv``), as SB3's
@@ -434,16 +488,16 @@ def make_batch_env(
 
     ``wrapper_class``: ``None`` or ``grasp_envs.wrappers.ScriptedStarts`` (run batched, with ``wrapper_kwargs``);
     the batch has no per-env Gymnasium envs to wrap, so any other wrapper is refused.
-    """
-    from grasp_envs.wrappers import ScriptedStarts
 
+    Every argument is checked before the simulations are built: a value of the wrong type or out of range raises
+    ``ValueError`` naming the argument and the value.
+    """
+    _check_arguments(
+        env_id=env_id, n_envs=n_envs, seed=seed, n_threads=n_threads, wrapper_class=wrapper_class,
+        wrapper_kwargs=wrapper_kwargs, monitor=monitor, info_keywords=info_keywords, monitor_file=monitor_file,
+    )  # fmt: skip
     scripted = None
     if wrapper_class is not None:
-        if wrapper_class is not ScriptedStarts:
-            raise TypeError(
-                f"the batched engine runs no per-env Gymnasium wrappers; {getattr(wrapper_class, '__name__', wrapper_class)}"
-                " cannot wrap it (ScriptedStarts is built in; wrap the VecEnv with VecEnv wrappers instead)"
-            )
         scripted = dict(wrapper_kwargs or {})
     elif wrapper_kwargs:
         raise TypeError("wrapper_kwargs given without wrapper_class")

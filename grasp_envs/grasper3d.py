@@ -451,7 +451,9 @@ class Grasper3DEnv(ArmEnv):
     motor's command, clipped to [-0.5, 0.5] (gear 100: at most 50 N m).
 
     ## Observation Space
-    `Box(-inf, inf, (N,), float64)`. `observation="task"` (default): N = 32, the rows of this table:
+    `Box(-inf, inf, (N,), float64)`: N = 25 with `observation="task"` (default) or 31 with `observation="joint"`,
+    plus 1 with `observe_claw_torque` and 6 with `cube_rotation` (32 for `Grasper3D-v7`). `observation="task"`, the
+    rows of this table:
 
     | Num | Observation | Unit | When |
     |-----|-------------|------|------|

@@ -16,7 +16,12 @@ ARM_GEOMS = ["upper_arm", "forearm"]
 
 
 class WallReacher3DTask(Reacher3DTask):
-    """WallReacher3D's step logic over ``n`` simulations (options: ``WallReacher3DEnv``)."""
+    """WallReacher3D's step logic over ``n`` simulations (options: ``WallReacher3DEnv``).
+
+    A task of its own (thesis 5.2.4), not a version of Reacher3D: it reuses the 3D reacher's arm (actions, joint
+    observation, palm-to-target distance) and its distance and control reward terms, and adds the wall: its contact
+    and proximity penalties, the target behind it, the success that needs no wall contact in the episode.
+    """
 
     contact_pairs = tuple((geom, "wall") for geom in ARM_GEOMS)
 

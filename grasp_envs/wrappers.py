@@ -120,7 +120,11 @@ class ScriptedStarts(
             and 0 <= bounds[0] < bounds[1]
         ):
             raise ValueError(f"ScriptedStarts steps must be (low, high) integers with 0 <= low < high, got {steps!r}")
-        if hold_height is not None and (isinstance(hold_height, bool) or not hold_height > 0):
+        if hold_height is not None and (
+            isinstance(hold_height, bool)
+            or not isinstance(hold_height, int | float | np.integer | np.floating)
+            or not hold_height > 0
+        ):
             raise ValueError(f"ScriptedStarts hold_height must be None or a positive height (m), got {hold_height!r}")
         return {"probability": float(probability), "steps": (int(bounds[0]), int(bounds[1])), "hold_height": hold_height}
 

@@ -32,7 +32,7 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import gymnasium as gym
 import numpy as np
@@ -42,6 +42,7 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
+T = TypeVar("T")
 ORDERED_DICT_TAG = "tag:yaml.org,2002:python/object/apply:collections.OrderedDict"
 
 
@@ -472,8 +473,10 @@ def load_normalization(path: str | Path) -> NormalizationStats:
             root = StatisticsUnpickler(file, path).load()
     except pickle.UnpicklingError as error:
         raise RunFileError(f"{path}: {error}") from None
-    except (EOFError, ValueError, TypeError, AttributeError, IndexError, KeyError, OSError) as error:
-        raise RunFileError(f"{path}: not a readable VecNormalize pickle (truncated or corrupted): {error!r}") from None
+    except OSError as error:
+        raise RunFileError(f"{path}: cannot read: {error}") from None
+    except Exception as error:  # damaged bytes make pickle and numpy's reconstructors raise nearly any type
+        raise RunFileError(f"{path}: not a readable VecNormalize pickle (truncated or corrupted): {error!r}") from error
     if not (isinstance(root, _Inert) and root.qualified_name.endswith(".VecNormalize") and isinstance(root.state, dict)):
         raise RunFileError(f"{path}: does not hold a VecNormalize")
     state: dict[str, Any] = root.state
@@ -486,7 +489,7 @@ def load_normalization(path: str | Path) -> NormalizationStats:
             clip_obs=float(state["clip_obs"]), clip_reward=float(state["clip_reward"]), gamma=float(state["gamma"]),
             epsilon=float(state["epsilon"]), norm_obs_keys=state.get("norm_obs_keys"),
         )  # fmt: skip
-    except (KeyError, TypeError, ValueError) as error:
+    except (KeyError, TypeError, ValueError, OverflowError) as error:
         raise RunFileError(f"{path}: VecNormalize statistics incomplete or malformed: {error!r}") from None
 
 
@@ -596,13 +599,13 @@ def load_agent(
     if trust_pickle:
         from sb3_trpo_plus.zoo import algorithms
 
-        model = _trusted(
+        model = load_trusted_file(
             lambda: algorithms()[config.algo].load(
                 model_path, device=device, custom_objects={"learning_rate": 0.0, "lr_schedule": lambda _: 0.0}
             ),
             model_path,
         )
-        vec_normalize = _trusted(lambda: _load_vec_normalize_unbound(stats_path), stats_path) if has_stats else None
+        vec_normalize = load_trusted_file(lambda: _load_vec_normalize_unbound(stats_path), stats_path) if has_stats else None
         return model, vec_normalize, config.env_kwargs
     normalization = load_normalization(stats_path) if has_stats else None
     probe = make_eval_env(config, normalization)
@@ -613,11 +616,17 @@ def load_agent(
     return policy, normalization, config.env_kwargs
 
 
-def _trusted(load: Callable[[], Any], path: Path) -> Any:
+def load_trusted_file(load: Callable[[], T], path: str | Path) -> T:
+    """``load()``, which unpickles ``path`` (a file the user trusts); any failure is a :class:`RunFileError` naming
+    the file. Unpickling damaged bytes runs whatever classes and arguments they spell, so any exception may come."""
     try:
         return load()
-    except (zipfile.BadZipFile, EOFError, pickle.UnpicklingError, json.JSONDecodeError, RuntimeError) as error:
-        raise RunFileError(f"{path}: cannot be loaded (truncated or corrupted): {error}") from None
+    except RunFileError:
+        raise
+    except Exception as error:
+        if str(error).startswith(f"{path}: "):  # already names the file (TRPOPlus.load does)
+            raise RunFileError(str(error)) from error
+        raise RunFileError(f"{path}: cannot be loaded (truncated or corrupted?): {type(error).__name__}: {error}") from error
 
 
 def _load_vec_normalize_unbound(path: Path) -> VecNormalize:

@@ -1,4 +1,5 @@
-"""Callbacks: per-term reward logging and hyperparameters in TensorBoard; Ctrl-C that stops cleanly and saves."""
+"""Callbacks: per-term reward logging and hyperparameters in TensorBoard, every training episode's return and success;
+Ctrl-C that stops cleanly and saves."""
 
 from __future__ import annotations
 
@@ -59,6 +60,25 @@ class RewardTermsCallback(BaseCallback):
     def _on_rollout_end(self) -> None:
         for key, total in self._sums.items():
             self.logger.record(f"rollout/{key}", total / max(self._counts[key], 1))
+
+
+class EpisodeStats(BaseCallback):
+    """Collect ``(return, success, length)`` of every finished training episode in ``episodes``.
+
+    Reads SB3's ``Monitor`` record (``info["episode"]``) and the env's success flag ``info["is_success"]`` at the
+    episode's last step (False where the env gives none).
+    """
+
+    def __init__(self, verbose: int = 0):
+        super().__init__(verbose)
+        self.episodes: list[tuple[float, bool, int]] = []
+
+    def _on_step(self) -> bool:
+        for info, done in zip(self.locals["infos"], self.locals["dones"], strict=True):
+            if done and "episode" in info:
+                episode = info["episode"]
+                self.episodes.append((float(episode["r"]), bool(info.get("is_success", False)), int(episode["l"])))
+        return True
 
 
 def save_vec_normalize(vec_normalize: VecNormalize, path: str | Path) -> None:

@@ -109,6 +109,33 @@ def _save_cleanly_on_interrupt() -> None:
     ExperimentManager.save_trained_model = save_trained_model  # type: ignore[method-assign]
 
 
+def _name_damaged_files_of_resumed_runs() -> None:
+    """``trpo-plus train -i <run>/<ENV>.zip``: rl-zoo3 unpickles that model and the ``vecnormalize.pkl`` beside it;
+    a damaged one raises :class:`~sb3_trpo_plus.agents.RunFileError` naming the file, not a bare unpickling error."""
+    from rl_zoo3.exp_manager import ExperimentManager
+
+    from sb3_trpo_plus.agents import load_trusted_file
+
+    if getattr(ExperimentManager._maybe_normalize, "_names_files", False):
+        return
+    original_normalize, original_load = ExperimentManager._maybe_normalize, ExperimentManager._load_pretrained_agent
+
+    @functools.wraps(original_normalize)
+    def _maybe_normalize(self: Any, env: Any, eval_env: bool) -> Any:
+        path = os.path.join(os.path.dirname(self.trained_agent), self.env_name, "vecnormalize.pkl")  # rl-zoo3's choice
+        if not os.path.exists(path):
+            return original_normalize(self, env, eval_env)
+        return load_trusted_file(lambda: original_normalize(self, env, eval_env), path)
+
+    @functools.wraps(original_load)
+    def _load_pretrained_agent(self: Any, hyperparams: dict[str, Any], env: Any) -> Any:
+        return load_trusted_file(lambda: original_load(self, hyperparams, env), self.trained_agent)
+
+    _maybe_normalize._names_files = True  # type: ignore[attr-defined]
+    ExperimentManager._maybe_normalize = _maybe_normalize  # type: ignore[method-assign]
+    ExperimentManager._load_pretrained_agent = _load_pretrained_agent  # type: ignore[method-assign]
+
+
 @contextlib.contextmanager
 def _custom_training_envs(make_vec_env: Callable[..., Any] | None) -> Iterator[None]:
     """While open, rl-zoo3 builds the training env with ``make_vec_env(gym_id, <make_vec_env's arguments>)`` (the
@@ -200,6 +227,7 @@ def train(argv: Sequence[str]) -> None:
         parser.error("--sim-threads sets the physics threads of --vec-env batch or --workers")
     _name_tensorboard_runs()
     _save_cleanly_on_interrupt()
+    _name_damaged_files_of_resumed_runs()
     vec_env = "dummy" if known.vec_env == "batch" else known.vec_env
     sys.argv = ["trpo-plus train", *_zoo_argv(known.algo, known.env, [*rest, "--vec-env", vec_env])]
     with _custom_training_envs(make):
@@ -341,26 +369,35 @@ def _zoo_enjoy(argv: Sequence[str]) -> dict[str, Any]:
         rest = [*rest, "--no-render"]
     folder = known.folder or _default_folder(known.algo, known.env)
     print(f"trpo-plus enjoy: loading from {folder} (--trust-pickle: rl-zoo3 unpickles the run)")
-    # rl-zoo3 reads config.yml / args.yml with yaml.UnsafeLoader and evaluates `normalize`: refuse code there first
-    _check_run_yaml(folder, known.algo, known.env, known.exp_id)
     sys.argv = ["trpo-plus enjoy", "--algo", known.algo, "--env", known.env, "-f", folder, "--exp-id", str(known.exp_id)]
     sys.argv += [*packages, *rest]
-    zoo_enjoy()
+    with _validated_run_folders(known.env):
+        zoo_enjoy()
     return {}
 
 
-def _check_run_yaml(folder: str, algo: str, env_id: str, exp_id: int) -> None:
-    from huggingface_sb3 import EnvironmentName
-    from rl_zoo3.utils import get_latest_run_id
+@contextlib.contextmanager
+def _validated_run_folders(env_id: str) -> Iterator[None]:
+    """While open, each run folder rl-zoo3's enjoy picks (``get_model_path``: a local run, or one it has just
+    downloaded from the Hugging Face hub) is checked by :func:`sb3_trpo_plus.agents.validate_run_files` before
+    rl-zoo3 reads its ``config.yml`` / ``args.yml`` with ``yaml.UnsafeLoader`` and evaluates ``normalize``."""
+    import rl_zoo3.enjoy as enjoy_module
 
     from sb3_trpo_plus.agents import validate_run_files
 
-    env_name = EnvironmentName(env_id)
-    if exp_id == 0:
-        exp_id = get_latest_run_id(os.path.join(folder, algo), env_name)
-    run = Path(folder, algo, f"{env_name}_{exp_id}") if exp_id > 0 else Path(folder, algo)
-    if run.is_dir():
-        validate_run_files(run, env_id)
+    original = enjoy_module.get_model_path
+
+    @functools.wraps(original)
+    def get_model_path(*args: Any, **kwargs: Any) -> tuple[str, str, str]:
+        name_prefix, model_path, log_path = original(*args, **kwargs)
+        validate_run_files(log_path, env_id)
+        return name_prefix, model_path, log_path
+
+    enjoy_module.get_model_path = get_model_path
+    try:
+        yield
+    finally:
+        enjoy_module.get_model_path = original
 
 
 def _load_trained(

@@ -55,6 +55,7 @@ from stable_baselines3.common.utils import obs_as_tensor
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
+from sb3_trpo_plus.arguments import Rule, check_arguments, choice, integer, keywords, names, number, optional
 from sb3_trpo_plus.vec_env import RolloutWorkerError, _death_cause
 
 __all__ = [
@@ -69,6 +70,69 @@ __all__ = [
     "SegmentOrder",
     "WorkerEnvs",
 ]
+
+
+# ---------------------------------------------------------------------------------------------------- argument rules
+POOL_ARGUMENT_RULES: dict[str, Rule] = {
+    "env_id": Rule(lambda value: isinstance(value, str), "a registered Gymnasium id (str)"),
+    "num_workers": integer(1),
+    "envs_per_worker": integer(1),
+    "seed": integer(0, optional=True),
+    "sim_threads": integer(0),
+    "env_kwargs": keywords("the env's options"),
+    "scripted_starts": keywords("ScriptedStarts' options"),
+    "info_keywords": names(optional=True),
+    "monitor_file": optional(str | os.PathLike, "a file path (str or os.PathLike)"),
+    "max_restarts": integer(0),
+    # ProcessRollouts
+    "start_method": choice(mp.get_all_start_methods(), optional=True),
+    # RayRollouts
+    "address": optional(str, "a Ray address (str)"),
+    "cpus_per_worker": number(lambda x: x >= 0, ">= 0"),
+    "placement_timeout": number(lambda x: x > 0, "> 0"),
+}
+"""Every constructor argument of the pools (:class:`RolloutWorkers` and its subclasses) and what it accepts."""
+
+WORKER_ARGUMENT_RULES: dict[str, Rule] = {
+    "index": integer(0),
+    "envs": Rule(lambda value: isinstance(value, WorkerEnvs), "a WorkerEnvs"),
+    "torch_seed": integer(0, optional=True),
+}
+"""Every constructor argument of :class:`RolloutWorker` and what it accepts."""
+
+WORKER_ENVS_RULES: dict[str, Rule] = {
+    "env_id": POOL_ARGUMENT_RULES["env_id"],
+    "n_envs": integer(1),
+    "sim_threads": POOL_ARGUMENT_RULES["sim_threads"],
+    "env_kwargs": keywords("the env's options", optional=False),
+    "scripted_starts": POOL_ARGUMENT_RULES["scripted_starts"],
+    "info_keywords": names(),
+}
+"""Every field of :class:`WorkerEnvs` and what it accepts."""
+
+
+# ---------------------------------------------------------------------------------------------------- checks
+@contextlib.contextmanager
+def unvalidated_distributions() -> Iterator[None]:
+    """``torch.distributions`` without argument checks while it lasts: the checks are a third of a small policy's
+    forward pass per step. Collection checks the policy's inputs instead (``check_finite_observations``), and the
+    update keeps the weights finite, so the checks would never fire."""
+    previous = th.distributions.Distribution._validate_args
+    th.distributions.Distribution.set_default_validate_args(False)
+    try:
+        yield
+    finally:
+        th.distributions.Distribution.set_default_validate_args(previous)
+
+
+def check_finite_observations(observations: Any, source: str) -> None:
+    """Raise ``ValueError`` naming the first env whose observation holds a NaN or an infinity."""
+    arrays = observations.values() if isinstance(observations, dict) else [observations]
+    for array in arrays:
+        finite = np.isfinite(np.asarray(array, dtype=np.float64).reshape(len(array), -1)).all(axis=1)
+        if not finite.all():
+            index = int(np.flatnonzero(~finite)[0])
+            raise ValueError(f"{source}: env {index} returned a non-finite observation: {np.asarray(array)[index]}")
 
 
 # ---------------------------------------------------------------------------------------------------- data records
@@ -90,6 +154,10 @@ class WorkerEnvs:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     scripted_starts: dict[str, Any] | None = None
     info_keywords: tuple[str, ...] = ("is_success",)
+
+    def __post_init__(self) -> None:
+        check_arguments(type(self).__name__, WORKER_ENVS_RULES, {name: getattr(self, name) for name in WORKER_ENVS_RULES})
+        object.__setattr__(self, "info_keywords", tuple(self.info_keywords))  # a list is stored as a tuple
 
     def build(self) -> VecEnv:
         import grasp_envs
@@ -245,7 +313,8 @@ class RolloutWorker:
     """
 
     def __init__(self, index: int, envs: WorkerEnvs, torch_seed: int | None):
-        self.index = index
+        check_arguments(type(self).__name__, WORKER_ARGUMENT_RULES, {"index": index, "envs": envs, "torch_seed": torch_seed})
+        self.index = int(index)
         self.envs = envs
         self.env = envs.build()
         self.policy: ActorCriticPolicy | None = None
@@ -253,7 +322,7 @@ class RolloutWorker:
         if torch_seed is None:
             generator.seed()
         else:
-            generator.manual_seed(torch_seed)
+            generator.manual_seed(int(torch_seed))
         self._rng_state = generator.get_state()
         n = self.env.num_envs
         self._raw_obs: np.ndarray | None = None
@@ -349,7 +418,9 @@ class RolloutWorker:
         log_probs_out = np.zeros((n_steps, n_envs), dtype=np.float32)
         ended: list[list[tuple[int, dict[str, Any]]]] = []
         obs = norm.obs(raw) if norm is not None else raw
-        with self._own_generator(), th.inference_mode():  # one grad-free context for the whole segment
+        check_finite_observations(obs, f"rollout worker {self.index}")
+        # one grad-free context for the whole segment
+        with self._own_generator(), th.inference_mode(), unvalidated_distributions():
             for t in range(n_steps):
                 raw_observations[t] = raw
                 episode_starts[t] = self._episode_starts
@@ -393,6 +464,7 @@ class RolloutWorker:
                 self._advance(new_raw, dones)
                 raw = new_raw
                 obs = norm.obs(raw) if norm is not None else raw
+                check_finite_observations(obs, f"rollout worker {self.index}")
             last_values = policy.predict_values(obs_as_tensor(obs, policy.device)).cpu().numpy().flatten()  # type: ignore[arg-type]
         raw_observations[n_steps] = raw
         episode_timesteps[n_steps] = self._timesteps
@@ -600,6 +672,9 @@ class RolloutWorkers(VecEnv):
     ``(w + 1) * envs_per_worker - 1``). Use a subclass: :class:`InProcessRollouts`, :class:`ProcessRollouts`,
     :class:`RayRollouts`.
 
+    Every argument is checked before any worker starts (``POOL_ARGUMENT_RULES``): a value of the wrong type or out of
+    range raises ``ValueError`` naming the argument and the value.
+
     :param env_id: a registered Gymnasium id
     :param num_workers: number of workers
     :param envs_per_worker: envs of each worker (one batched VecEnv per worker for the tasks of ``grasp_envs``)
@@ -630,16 +705,12 @@ class RolloutWorkers(VecEnv):
         monitor_file: str | None = None,
         max_restarts: int = 0,
     ):
-        for name, value, minimum in (
-            ("num_workers", num_workers, 1), ("envs_per_worker", envs_per_worker, 1), ("sim_threads", sim_threads, 0),
-            ("max_restarts", max_restarts, 0),
-        ):  # fmt: skip
-            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
-                raise ValueError(f"{type(self).__name__}: `{name}` must be an int >= {minimum}, got {value!r}")
-        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer)):
-            raise ValueError(f"{type(self).__name__}: `seed` must be an int or None, got {seed!r}")
-        if not isinstance(env_id, str):
-            raise ValueError(f"{type(self).__name__}: `env_id` must be a registered Gymnasium id, got {env_id!r}")
+        check_arguments(
+            type(self).__name__, POOL_ARGUMENT_RULES,
+            {"env_id": env_id, "num_workers": num_workers, "envs_per_worker": envs_per_worker, "seed": seed,
+             "sim_threads": sim_threads, "env_kwargs": env_kwargs, "scripted_starts": scripted_starts,
+             "info_keywords": info_keywords, "monitor_file": monitor_file, "max_restarts": max_restarts},
+        )  # fmt: skip
         import grasp_envs
 
         if info_keywords is None:
@@ -665,7 +736,7 @@ class RolloutWorkers(VecEnv):
         self._blueprint_of: int | None = None
         self._actions: np.ndarray | None = None
         self.last_timings: dict[str, Any] = {}
-        self._monitor = None if monitor_file is None else _MonitorWriter(monitor_file, env_id, tuple(info_keywords))
+        self._monitor = None if monitor_file is None else _MonitorWriter(os.fspath(monitor_file), env_id, tuple(info_keywords))
         started: list[int] = []
         try:
             for worker in range(self.num_workers):
@@ -959,6 +1030,7 @@ class ProcessRollouts(RolloutWorkers):
     """One local process per rollout worker. ``start_method``: as SB3's ``SubprocVecEnv`` (default forkserver)."""
 
     def __init__(self, env_id: str, num_workers: int, envs_per_worker: int, *, start_method: str | None = None, **kwargs: Any):
+        check_arguments(type(self).__name__, POOL_ARGUMENT_RULES, {"start_method": start_method})
         self._start_method = start_method
         super().__init__(env_id, num_workers, envs_per_worker, **kwargs)
 
@@ -970,7 +1042,8 @@ class RayRollouts(RolloutWorkers):
     """One Ray actor per rollout worker, spread over the cluster's nodes (``SPREAD`` scheduling).
 
     Connects to the running Ray cluster (``address``, else the ``RAY_ADDRESS`` environment variable) or, when there
-    is none, starts a local Ray instance; a Ray session that is already initialised is used as it is.
+    is none, starts a local Ray instance; a Ray session that is already initialised is used as it is. Ray is imported
+    and started once every argument is checked.
 
     :param cpus_per_worker: CPUs each actor reserves (Ray places a worker on a node with that many free)
     :param max_restarts: restarts of each worker after its process or node died (default 3)
@@ -989,18 +1062,22 @@ class RayRollouts(RolloutWorkers):
         placement_timeout: float = 120.0,
         **kwargs: Any,
     ):
-        try:
-            import ray
-        except ImportError as error:  # pragma: no cover - the suite runs with the extra installed
-            raise ImportError("RayRollouts needs Ray: pip install 'sb3-trpo-plus[ray]'") from error
-        if not (isinstance(cpus_per_worker, int | float) and not isinstance(cpus_per_worker, bool) and cpus_per_worker >= 0):
-            raise ValueError(f"RayRollouts: `cpus_per_worker` must be a number >= 0, got {cpus_per_worker!r}")
-        if not ray.is_initialized():
-            ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        check_arguments(
+            type(self).__name__, POOL_ARGUMENT_RULES,
+            {"address": address, "cpus_per_worker": cpus_per_worker, "placement_timeout": placement_timeout},
+        )  # fmt: skip
+        self._address = address
         self._cpus_per_worker, self._placement_timeout = float(cpus_per_worker), float(placement_timeout)
         super().__init__(env_id, num_workers, envs_per_worker, max_restarts=max_restarts, **kwargs)
 
     def _make_backend(self) -> _Backend:
+        """Ray's backend, Ray started first (after the pool checked its arguments)."""
+        try:
+            import ray
+        except ImportError as error:  # pragma: no cover - the suite runs with the extra installed
+            raise ImportError("RayRollouts needs Ray: pip install 'sb3-trpo-plus[ray]'") from error
+        if not ray.is_initialized():
+            ray.init(address=self._address, include_dashboard=False, log_to_driver=False)
         return _RayBackend(self._cpus_per_worker, self._placement_timeout)
 
 
@@ -1042,9 +1119,14 @@ class _MonitorWriter:
         self.writer.close()
 
 
+POOL_LOOKUP_RULES: dict[str, Rule] = {"env": Rule(lambda value: isinstance(value, VecEnv), "a VecEnv")}
+"""The argument of :func:`rollout_workers` and :func:`buried_rollout_workers`."""
+
+
 def buried_rollout_workers(env: VecEnv) -> bool:
     """Whether a :class:`RolloutWorkers` pool lies under ``env``'s wrappers where :func:`rollout_workers` does not
     find it (under wrappers other than one ``VecNormalize``)."""
+    check_arguments("buried_rollout_workers", POOL_LOOKUP_RULES, {"env": env})
     while isinstance(env, VecEnvWrapper):
         env = env.venv
     return isinstance(env, RolloutWorkers)
@@ -1052,6 +1134,7 @@ def buried_rollout_workers(env: VecEnv) -> bool:
 
 def rollout_workers(env: VecEnv) -> tuple[RolloutWorkers, VecNormalize | None] | None:
     """``(pool, vec_normalize)`` when ``env`` is a :class:`RolloutWorkers` pool, bare or under one ``VecNormalize``."""
+    check_arguments("rollout_workers", POOL_LOOKUP_RULES, {"env": env})
     if isinstance(env, RolloutWorkers):
         return env, None
     if isinstance(env, VecNormalize) and isinstance(env.venv, RolloutWorkers):

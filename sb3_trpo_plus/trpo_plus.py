@@ -9,12 +9,11 @@ import pathlib
 import random
 import tempfile
 import time
-import types
 import warnings
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar, NamedTuple, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import torch as th
@@ -30,6 +29,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from torch import nn
 from torch.nn import functional as F
 
+from sb3_trpo_plus.arguments import Rule, boolean, integer, number, optional
 from sb3_trpo_plus.baselines import LinearFeatureBaseline
 from sb3_trpo_plus.natural_gradient import (
     LineSearchResult,
@@ -47,7 +47,15 @@ from sb3_trpo_plus.replay import (
     importance_weights,
     recompute_advantages,
 )
-from sb3_trpo_plus.rollouts import Normalizer, RolloutWorkers, Segment, buried_rollout_workers, rollout_workers
+from sb3_trpo_plus.rollouts import (
+    Normalizer,
+    RolloutWorkers,
+    Segment,
+    buried_rollout_workers,
+    check_finite_observations,
+    rollout_workers,
+    unvalidated_distributions,
+)
 
 SelfTRPOPlus = TypeVar("SelfTRPOPlus", bound="TRPOPlus")
 
@@ -77,58 +85,6 @@ def actor_parameters(policy: ActorCriticPolicy) -> list[nn.Parameter]:
 
 
 # ---------------------------------------------------------------------- hyperparameter validation
-class Rule(NamedTuple):
-    """What one constructor argument accepts, and that requirement in words (as the error message states it)."""
-
-    accepts: Callable[[Any], bool]
-    requirement: str
-
-
-def _is_bool(value: Any) -> bool:
-    return isinstance(value, bool)
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, int | np.integer) and not isinstance(value, bool)
-
-
-def _is_finite_number(value: Any) -> bool:
-    if not isinstance(value, int | float | np.integer | np.floating) or isinstance(value, bool):
-        return False
-    try:
-        return math.isfinite(value)
-    except OverflowError:  # an int beyond float's range
-        return False
-
-
-def _is_schedule(value: Any) -> bool:
-    """A function of the remaining progress (a class is callable too, but is no schedule)."""
-    return callable(value) and not isinstance(value, type)
-
-
-def _boolean() -> Rule:
-    return Rule(_is_bool, "a bool (True or False)")
-
-
-def _integer(minimum: int) -> Rule:
-    return Rule(lambda value: _is_int(value) and value >= minimum, f"an integer >= {minimum}")
-
-
-def _number(condition: Callable[[float], bool], text: str, *, schedule: bool = False, optional: bool = False) -> Rule:
-    """A finite int or float satisfying ``condition`` (``text`` in words); or a schedule, or None, where allowed."""
-
-    def accepts(value: Any) -> bool:
-        if (optional and value is None) or (schedule and _is_schedule(value)):
-            return True
-        return _is_finite_number(value) and condition(float(value))
-
-    return Rule(accepts, ("None or " if optional else "") + f"a finite number {text}" + (" or a schedule" if schedule else ""))
-
-
-def _optional(kind: type | types.UnionType, text: str) -> Rule:
-    return Rule(lambda value: value is None or isinstance(value, kind), f"None or {text}")
-
-
 def _is_environment(value: Any) -> bool:
     if value is None or isinstance(value, str | VecEnv):  # None: SB3's `load` builds the model before the env is set
         return True
@@ -158,41 +114,41 @@ HYPERPARAMETER_RULES: dict[str, Rule] = {
         f"one of {sorted(TRPO.policy_aliases)} or an ActorCriticPolicy subclass",
     ),
     "env": Rule(_is_environment, "an environment id (str), a Gymnasium environment or a VecEnv"),
-    "learning_rate": _number(lambda x: x > 0, "> 0", schedule=True),
-    "n_steps": _integer(1),
-    "batch_size": _integer(1),
-    "gamma": _number(lambda x: 0.0 <= x <= 1.0, "in [0, 1]"),
-    "cg_max_steps": _integer(1),
-    "cg_damping": _number(lambda x: x >= 0, ">= 0"),
-    "line_search_shrinking_factor": _number(lambda x: 0.0 < x < 1.0, "in the open interval (0, 1)"),
-    "line_search_max_iter": _integer(1),
-    "n_critic_updates": _integer(0),
-    "gae_lambda": _number(lambda x: 0.0 <= x <= 1.0, "in [0, 1]"),
-    "use_sde": _boolean(),
-    "sde_sample_freq": _integer(-1),
+    "learning_rate": number(lambda x: x > 0, "> 0", schedule=True),
+    "n_steps": integer(1),
+    "batch_size": integer(1),
+    "gamma": number(lambda x: 0.0 <= x <= 1.0, "in [0, 1]"),
+    "cg_max_steps": integer(1),
+    "cg_damping": number(lambda x: x >= 0, ">= 0"),
+    "line_search_shrinking_factor": number(lambda x: 0.0 < x < 1.0, "in the open interval (0, 1)"),
+    "line_search_max_iter": integer(1),
+    "n_critic_updates": integer(0),
+    "gae_lambda": number(lambda x: 0.0 <= x <= 1.0, "in [0, 1]"),
+    "use_sde": boolean(),
+    "sde_sample_freq": integer(-1),
     "rollout_buffer_class": Rule(
         lambda value: value is None or (isinstance(value, type) and issubclass(value, RolloutBuffer)),
         "None or a RolloutBuffer subclass",
     ),
-    "rollout_buffer_kwargs": _optional(dict, "a dict"),
-    "normalize_advantage": _boolean(),
-    "target_kl": _number(lambda x: x > 0, "> 0", schedule=True),
-    "sub_sampling_factor": _integer(1),
-    "fisher_sub_sampling": _integer(1),
-    "replay_memory": _integer(0),
-    "replay_is_clip": _number(lambda x: x > 0, "> 0", optional=True),
-    "replay_critic": _boolean(),
-    "cg_warm_start": _boolean(),
-    "cg_warm_start_rescale": _boolean(),
+    "rollout_buffer_kwargs": optional(dict, "a dict"),
+    "normalize_advantage": boolean(),
+    "target_kl": number(lambda x: x > 0, "> 0", schedule=True),
+    "sub_sampling_factor": integer(1),
+    "fisher_sub_sampling": integer(1),
+    "replay_memory": integer(0),
+    "replay_is_clip": number(lambda x: x > 0, "> 0", optional=True),
+    "replay_critic": boolean(),
+    "cg_warm_start": boolean(),
+    "cg_warm_start_rescale": boolean(),
     "value_baseline": Rule(lambda value: isinstance(value, str) and value in VALUE_BASELINES, f"one of {VALUE_BASELINES}"),
-    "linear_baseline_l2": _number(lambda x: x >= 0, ">= 0"),
-    "stats_window_size": _integer(1),
-    "tensorboard_log": _optional(str | os.PathLike, "a folder path"),
-    "policy_kwargs": _optional(dict, "a dict"),
-    "verbose": _integer(0),
-    "seed": Rule(lambda value: value is None or (_is_int(value) and value >= 0), "None or an integer >= 0"),
+    "linear_baseline_l2": number(lambda x: x >= 0, ">= 0"),
+    "stats_window_size": integer(1),
+    "tensorboard_log": optional(str | os.PathLike, "a folder path"),
+    "policy_kwargs": optional(dict, "a dict"),
+    "verbose": integer(0),
+    "seed": integer(0, optional=True),
     "device": Rule(_is_device, "a torch.device or a device name ('auto', 'cpu', 'cuda', ...)"),
-    "_init_setup_model": _boolean(),
+    "_init_setup_model": boolean(),
 }
 """Every constructor argument of :class:`TRPOPlus` and what it accepts.
 
@@ -540,10 +496,13 @@ class TRPOPlus(TRPO):
             )
 
         def record(step: dict[str, Any]) -> None:
+            check_finite_observations(step["new_obs"], type(env).__name__)
             self._record_step(recorder, step)
 
-        if not super().collect_rollouts(env, _AfterEachStep(self, callback, record), rollout_buffer, n_rollout_steps):
-            return False
+        check_finite_observations(self._last_obs, type(env).__name__)
+        with unvalidated_distributions():
+            if not super().collect_rollouts(env, _AfterEachStep(self, callback, record), rollout_buffer, n_rollout_steps):
+                return False
         if recorder is not None:
             assert self._last_original_obs is not None and self._episode_timesteps is not None
             self._current_rollout = recorder.finish(
@@ -891,11 +850,22 @@ class TRPOPlus(TRPO):
 
     def _critic_minibatches(self, replayed: Sequence[RolloutEvaluation]) -> Iterable[tuple[th.Tensor, th.Tensor]]:
         """Minibatches of (observations, returns): the current rollout's, with ``replay_critic`` the replayed ones' too."""
+        buffer = self.rollout_buffer
         if not (self.replay_critic and replayed):
-            for data in self.rollout_buffer.get(self.batch_size):
-                yield data.observations, data.returns  # type: ignore[misc]
+            if not (buffer.generator_ready and isinstance(buffer.observations, np.ndarray)):
+                for data in buffer.get(self.batch_size):
+                    yield data.observations, data.returns  # type: ignore[misc]
+                return
+            # RolloutBuffer.get's minibatches (one permutation per epoch) of the two fields the critic reads only
+            total = buffer.buffer_size * buffer.n_envs
+            observations = th.as_tensor(buffer.observations, device=self.device)
+            returns = th.as_tensor(buffer.returns, device=self.device).flatten()
+            permutation = np.random.permutation(total)
+            for start in range(0, total, self.batch_size):
+                idx = th.as_tensor(permutation[start : start + self.batch_size], device=self.device)
+                yield observations[idx], returns[idx]
             return
-        current = next(self.rollout_buffer.get(batch_size=None))
+        current = next(buffer.get(batch_size=None))
         obs_list, ret_list = [current.observations], [current.returns]
         for evaluation in replayed:
             obs_list.append(self.policy.obs_to_tensor(evaluation.observations)[0])  # type: ignore[arg-type]

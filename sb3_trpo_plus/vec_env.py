@@ -28,6 +28,8 @@ import numpy as np
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
+from sb3_trpo_plus.arguments import Rule, boolean, check_arguments, choice, integer
+
 
 def _handle(venv: DummyVecEnv, command: str, data: Any) -> Any:
     """Execute one command on a shard; the reply to send back (the worker loop and the in-process shard share it)."""
@@ -120,8 +122,23 @@ class _InProcessShard:
         pass
 
 
+SHARDED_ARGUMENT_RULES: dict[str, Rule] = {
+    "env_fns": Rule(
+        lambda value: isinstance(value, list | tuple) and len(value) >= 1 and all(callable(fn) for fn in value),
+        "a list or tuple of at least one environment constructor (callables)",
+    ),
+    "n_workers": integer(1, optional=True),
+    "start_method": choice(mp.get_all_start_methods(), optional=True),
+    "in_process": boolean(),
+}
+"""Every constructor argument of :class:`ShardedSubprocVecEnv` and what it accepts."""
+
+
 class ShardedSubprocVecEnv(VecEnv):
     """``n_workers`` workers, each stepping ``len(env_fns) / n_workers`` environments.
+
+    Every argument is checked before any worker starts (``SHARDED_ARGUMENT_RULES``): a value of the wrong type or
+    out of range raises ``ValueError`` naming the argument and the value.
 
     :param env_fns: environment constructors (as for ``SubprocVecEnv``)
     :param n_workers: number of workers (default: ``os.cpu_count()``, at most ``len(env_fns)``)
@@ -138,12 +155,12 @@ class ShardedSubprocVecEnv(VecEnv):
         start_method: str | None = None,
         in_process: bool = False,
     ):
+        check_arguments(
+            type(self).__name__, SHARDED_ARGUMENT_RULES,
+            {"env_fns": env_fns, "n_workers": n_workers, "start_method": start_method, "in_process": in_process},
+        )  # fmt: skip
         n_envs = len(env_fns)
-        if n_envs < 1:
-            raise ValueError("ShardedSubprocVecEnv needs at least one environment")
-        n_workers = min(n_workers or mp.cpu_count(), n_envs)
-        if n_workers < 1:
-            raise ValueError(f"n_workers must be >= 1, got {n_workers}")
+        n_workers = min(mp.cpu_count() if n_workers is None else int(n_workers), n_envs)
         if start_method is None:
             start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
         context = mp.get_context(start_method)

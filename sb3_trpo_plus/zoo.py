@@ -68,7 +68,8 @@ def algorithms() -> dict[str, type[OnPolicyAlgorithm]]:
 
 
 def _constructor_types(algo_class: type) -> dict[str, tuple[type, ...]]:
-    """Accepted types of every constructor argument, from its default value."""
+    """Accepted types of every constructor argument, from its default value: an int default takes an int only (never
+    a float such as ``64.0``), a float default an int or a float, a bool default a bool only."""
     accepted: dict[str, tuple[type, ...]] = {}
     for name, parameter in inspect.signature(algo_class).parameters.items():
         if name in {"self", "policy", "env", "_init_setup_model", "kwargs"}:
@@ -76,7 +77,9 @@ def _constructor_types(algo_class: type) -> dict[str, tuple[type, ...]]:
         default = parameter.default
         if isinstance(default, bool):
             accepted[name] = (bool,)
-        elif isinstance(default, int | float):
+        elif isinstance(default, int):
+            accepted[name] = (int,)
+        elif isinstance(default, float):
             accepted[name] = (int, float, str) if name in SCHEDULE_KEYS else (int, float)
         elif isinstance(default, str):
             accepted[name] = (str,)
@@ -443,6 +446,6 @@ def workers_training_env(
     return pool_class[backend](
         env_id, num_workers, n_envs // num_workers, seed=seed, sim_threads=n_threads, env_kwargs=env_kwargs,
         scripted_starts=_scripted_starts_of(wrapper_class, f"--workers {backend}"),
-        info_keywords=tuple((monitor_kwargs or {}).get("info_keywords", ())),
+        info_keywords=(monitor_kwargs or {}).get("info_keywords", ()),
         monitor_file=None if monitor_dir is None else os.path.join(monitor_dir, "workers"),
     )  # fmt: skip

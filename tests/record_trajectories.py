@@ -11,6 +11,7 @@ version of the code can replay the actions and compare. The files are frozen: re
 from __future__ import annotations
 
 import sys
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +20,7 @@ import numpy as np
 
 import grasp_envs
 from grasp_envs.scripted import SCRIPTED_POLICIES
+from grasp_envs.wrappers import ScriptedStarts
 
 OUT = Path(__file__).resolve().parent / "data" / "trajectories"
 EPISODES = 3
@@ -79,16 +81,10 @@ OPTION_SETS: dict[str, tuple[str, dict[str, Any]]] = {
     "Grasper3D-v6_ready": ("Grasper3D-v6", {"start_pose": "ready"}),
     "Grasper3D-v0_thesis": ("Grasper3D-v0", {"reward_mode": "thesis"}),
 }
-# training aids (scripted starts), recorded over six episodes: name -> (id, env kwargs)
-SCRIPTED_SETS: dict[str, tuple[str, dict[str, Any]]] = {
-    "Grasper3D-v6_ready_scripted_late": (
-        "Grasper3D-v6",
-        {"start_pose": "ready", "scripted_start_prob": 0.5, "scripted_start_steps": (50, 100)},
-    ),
-    "Grasper3D-v4_scripted_hold": (
-        "Grasper3D-v4",
-        {"scripted_start_prob": 0.6, "scripted_start_steps": (0, 100), "scripted_start_hold_height": 0.07},
-    ),
+# training aids (the ScriptedStarts wrapper), recorded over six episodes: name -> (id, env kwargs, wrapper kwargs)
+SCRIPTED_SETS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
+    "Grasper3D-v6_ready_scripted_late": ("Grasper3D-v6", {"start_pose": "ready"}, {"probability": 0.5, "steps": (50, 100)}),
+    "Grasper3D-v4_scripted_hold": ("Grasper3D-v4", {}, {"probability": 0.6, "steps": (0, 100), "hold_height": 0.07}),
 }
 
 
@@ -96,9 +92,13 @@ def main(names: list[str]) -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     targets = {env_id: (env_id, {}) for env_id in grasp_envs.ENV_IDS} | OPTION_SETS
     for name in names or [*targets, *SCRIPTED_SETS]:
-        env_id, kwargs = targets[name] if name in targets else SCRIPTED_SETS[name]
-        episodes = EPISODES if name in targets else 2 * EPISODES
-        np.savez_compressed(OUT / f"{name}.npz", **record(env_id, kwargs, episodes=episodes))
+        if name in targets:
+            env_id, kwargs = targets[name]
+            data = record(env_id, kwargs)
+        else:
+            env_id, kwargs, starts = SCRIPTED_SETS[name]
+            data = record(env_id, kwargs, partial(ScriptedStarts, **starts), episodes=2 * EPISODES)
+        np.savez_compressed(OUT / f"{name}.npz", **data)
         print(name)
 
 

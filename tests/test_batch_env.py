@@ -133,7 +133,7 @@ def test_jacobians_equal_mujocos_per_simulation() -> None:
         ({"n_envs": 2, "n_threads": -1}, ValueError, "n_threads must be an integer >= 0"),
         ({"n_envs": 2, "claw": "magnet"}, ValueError, "claw must be one of"),
         ({"n_envs": 2, "gripper": "x"}, TypeError, "has no option 'gripper'"),
-        ({"n_envs": 2, "wrapper_class": gym.wrappers.ClipAction}, TypeError, "runs no per-env Gymnasium wrappers"),
+        ({"n_envs": 2, "wrapper_class": gym.wrappers.ClipAction}, ValueError, "runs no per-env Gymnasium wrappers"),
         ({"n_envs": 2, "wrapper_class": ScriptedStarts, "wrapper_kwargs": {"probability": 2.0}}, ValueError, "probability"),
     ],
 )

@@ -34,7 +34,7 @@ def _as_snapshot(variant: Variant) -> dict:
     if variant.env_kwargs is not None:
         overrides["env_kwargs"] = variant.env_kwargs
     train_env_kwargs = {}
-    for wrapper in variant.train_wrappers:
+    for wrapper in variant.train_wrappers or []:
         ((name, kwargs),) = wrapper.items()
         assert name == "grasp_envs.wrappers.ScriptedStarts"
         train_env_kwargs |= {SCRIPTED_START_KWARGS[key]: value for key, value in kwargs.items()}
@@ -65,10 +65,10 @@ def test_every_variant_loads_with_valid_keys_and_types() -> None:
     for name, variant in VARIANTS.items():
         assert variant.name == name and variant.label
         assert variant.algo in study.ALGOS
-        assert isinstance(variant.hyperparameters, dict) and isinstance(variant.train_wrappers, list)
+        assert isinstance(variant.hyperparameters, dict) and isinstance(variant.train_wrappers, list | None)
         assert variant.env_kwargs is None or isinstance(variant.env_kwargs, dict)
         assert isinstance(builders.algorithm_class(name), type)
-        for wrapper in variant.train_wrappers:
+        for wrapper in variant.train_wrappers or []:
             ((path, kwargs),) = wrapper.items()
             assert path == "grasp_envs.wrappers.ScriptedStarts" and set(kwargs) <= set(SCRIPTED_START_KWARGS)
     assert len(set(study.LABELS.values())) == len(VARIANTS)
@@ -130,6 +130,40 @@ def test_the_benchmarks_import_each_other_without_a_circle() -> None:
         visit(name, ())
 
 
+def test_the_runner_imports_no_experiment_script() -> None:
+    """A study job needs the study's configuration, builders, protocol and run files, nothing of a diagnostic script."""
+    imported = set()
+    for node in ast.walk(ast.parse((ROOT / "benchmarks" / "runner.py").read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("benchmarks."):
+            imported.add(node.module.split(".")[1])
+    assert imported == {"builders", "protocol", "runs", "study"}
+
+
+def test_every_comparison_names_existing_variants() -> None:
+    """study.yml's comparisons (the report's extra P(X > Y) rows) pair two different variants of the study."""
+    assert study.COMPARISONS
+    for comparison in study.COMPARISONS:
+        assert {comparison.variant, comparison.baseline} <= set(VARIANTS) and comparison.variant != comparison.baseline
+    pairs = [(comparison.variant, comparison.baseline) for comparison in study.COMPARISONS]
+    assert len(set(pairs)) == len(pairs)
+
+
+@pytest.mark.parametrize(
+    ("comparisons", "message"),
+    [
+        ([{"variant": "plain", "baseline": "nothing"}], "names no variant"),
+        ([{"variant": "plain"}], "a comparison is"),
+        ([["plain", "plain"]], "a comparison is"),
+    ],
+)
+def test_a_comparison_of_an_unknown_variant_is_refused(tmp_path: Path, comparisons: list, message: str) -> None:
+    path = tmp_path / "study.yml"
+    variants = {"plain": {"label": "x", "algo": "trpo_plus"}}
+    path.write_text(json.dumps({"envs": {}, "study_variants": [], "variants": variants, "comparisons": comparisons}))
+    with pytest.raises(StudyError, match=message):
+        study.load_study(path)
+
+
 @pytest.mark.parametrize(
     ("suffix", "gamma", "env_id", "same_settings_as"),
     [
@@ -167,7 +201,7 @@ def test_scripted_start_variants_change_the_training_envs_only(name: str) -> Non
     assert (VARIANTS[scripted].algo, VARIANTS[scripted].hyperparameters) == (variant.algo, variant.hyperparameters)
     assert builders.model_settings("Grasper3D-v4", scripted) == builders.model_settings("Grasper3D-v4", name)
     assert VARIANTS[scripted].train_wrappers == [{"grasp_envs.wrappers.ScriptedStarts": {"probability": 0.25}}]
-    assert builders.train_wrapper_class(name) is None
+    assert builders.train_wrapper_class("Grasper3D-v4", name) is None
 
 
 def test_training_envs_are_wrapped_and_evaluation_envs_are_not() -> None:
@@ -184,6 +218,69 @@ def test_training_envs_are_wrapped_and_evaluation_envs_are_not() -> None:
     assert evaluation.envs[0].unwrapped.spec.kwargs["start_pose"] == "ready"  # type: ignore[union-attr]
     training.close()
     evaluation.close()
+
+
+RECIPE_STARTS = [{"grasp_envs.wrappers.ScriptedStarts": {"probability": 0.25, "steps": [50, 100]}}]
+
+
+def test_a_variant_without_train_wrappers_trains_with_the_zoo_entrys_env_wrapper() -> None:
+    """On Grasper3D-v7, whose zoo entries start a quarter of the training episodes 50-99 steps along the scripted grasp,
+    a variant without train_wrappers trains with those starts and evaluates without them; a variant's own
+    train_wrappers replace them, ``[]`` drops them."""
+    for name in ("warm", "trpo", "ppo"):
+        assert study.train_wrappers(VARIANTS[name], "Grasper3D-v7") == RECIPE_STARTS, name
+    own = VARIANTS["warm_scripted25"]
+    assert study.train_wrappers(own, "Grasper3D-v7") == own.train_wrappers != RECIPE_STARTS
+    assert study.train_wrappers(Variant("none", "none", "trpo_plus", train_wrappers=[]), "Grasper3D-v7") == []
+    training = builders.training_envs("Grasper3D-v7", "warm", seed=0)
+    for env in training.envs:
+        wrapper = next(w for w in _wrappers(env) if isinstance(w, ScriptedStarts))
+        assert (wrapper.probability, wrapper.steps) == (0.25, (50, 100))
+    evaluation = builders.evaluation_env("Grasper3D-v7", "warm", seed=0)
+    assert not any(isinstance(w, ScriptedStarts) for w in _wrappers(evaluation.envs[0]))
+    training.close()
+    evaluation.close()
+
+
+def test_the_committed_runs_train_with_their_variants_own_wrappers() -> None:
+    """Every committed run is on an env whose zoo entry has no env_wrapper: its training wrappers are its variant's
+    train_wrappers, or none, as when it was trained."""
+    folders = sorted(path for path in (ROOT / "benchmarks" / "results" / "convergence").glob("*/*") if path.is_dir())
+    assert folders
+    for folder in folders:
+        env_id, name = folder.parent.name, folder.name
+        assert study.train_wrappers(VARIANTS[name], env_id) == (VARIANTS[name].train_wrappers or []), folder
+
+
+def test_a_zoo_env_wrapper_that_evaluation_needs_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A zoo env_wrapper with a wrapper that is not a training aid would wrap rl-zoo3's evaluation envs too, and the
+    study's evaluation envs carry none: a variant that would inherit it is refused, naming it."""
+    zoo = study.hyperparameters
+    clip = "gymnasium.wrappers.ClipAction"
+    monkeypatch.setattr(study, "hyperparameters", lambda variant, env_id: {**zoo(variant, env_id), "env_wrapper": [clip]})
+    with pytest.raises(StudyError, match="ClipAction"):
+        study.train_wrappers(VARIANTS["warm"], "Grasper3D-v7")
+    assert study.train_wrappers(VARIANTS["warm_scripted25"], "Grasper3D-v7") == VARIANTS["warm_scripted25"].train_wrappers
+
+
+def test_the_headline_variant_trains_with_the_recommended_graspers_recipe() -> None:
+    """The runs behind the Grasper3D-v7 result (warm_scripted25_late_ready_cg25_g098 on Grasper3D-v6) train with the
+    settings of ``trpo-plus train --env Grasper3D-v7``: zoo_hyperparams/trpo_plus.yml's model hyperparameters, envs,
+    VecNormalize, budget and scripted starts, on an env whose options are the Grasper3D-v7 preset's."""
+    from grasp_envs.registration import PRESETS
+    from sb3_trpo_plus.recipes import _RUN_KEYS, recipe  # _RUN_KEYS: what make_model keeps from the constructor
+
+    variant, env_id = VARIANTS["warm_scripted25_late_ready_cg25_g098"], "Grasper3D-v6"
+    config, entry = study.settings(variant, env_id), recipe("Grasper3D-v7")
+    assert variant.algo == "trpo_plus" and builders.algorithm_class(variant.name).__name__ == "TRPOPlus"
+    assert config.kwargs == {key: value for key, value in entry.items() if key not in _RUN_KEYS}
+    assert (config.n_envs, config.policy, config.normalize_kwargs) == (entry["n_envs"], entry["policy"], {"gamma": 0.98})
+    assert entry["normalize"] is True and entry["gamma"] == 0.98
+    assert study.BUDGETS[env_id] == entry["n_timesteps"]
+    v6, v7 = PRESETS[env_id], PRESETS["Grasper3D-v7"]
+    assert v6.kwargs | config.env_kwargs == v7.kwargs | (entry.get("env_kwargs") or {}) == v6.kwargs | {"start_pose": "ready"}
+    assert (v6.entry_point, v6.max_episode_steps) == (v7.entry_point, v7.max_episode_steps)
+    assert study.train_wrappers(variant, env_id) == entry["env_wrapper"] == RECIPE_STARTS
 
 
 def test_evaluation_env_kwargs_are_the_variants_own_for_training_and_evaluation() -> None:
@@ -248,7 +345,7 @@ def test_a_normalize_mapping_reaches_the_training_and_the_evaluation_vecnormaliz
 
 @pytest.mark.parametrize("name", sorted(name for name, variant in VARIANTS.items() if variant.train_wrappers))
 def test_training_wrappers_are_accepted_by_the_env(name: str) -> None:
-    wrap = builders.train_wrapper_class(name)
+    wrap = builders.train_wrapper_class("Grasper3D-v4", name)
     assert wrap is not None
     env = wrap(gym.make("Grasper3D-v4"))
     env.reset(seed=0)
@@ -304,7 +401,7 @@ def test_the_agents_table_shows_the_100_episode_evaluation_where_the_manifest_ha
 def test_zero_start_solver_starts_at_zero_and_draws_nothing() -> None:
     import torch as th
 
-    from benchmarks.trpo_divergence import zero_start_solver
+    from benchmarks.builders import zero_start_solver
 
     matrix = th.tensor([[4.0, 1.0], [1.0, 3.0]])
     b = th.tensor([1.0, 2.0])

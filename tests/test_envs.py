@@ -135,8 +135,18 @@ def test_docstring_tables_match_spaces(env_id: str) -> None:
     assert _observation_rows(doc, env) == list(range(env.observation_space.shape[0]))
     dimension = env.observation_space.shape[0]
     assert f"(-inf, inf, ({dimension},), float64)" in obs_section or "(-inf, inf, (N,), float64)" in obs_section
-    if "(N,)" in obs_section:
-        assert f"N = {dimension}" in obs_section or env.unwrapped.task.observation == "joint" or env_id != "Grasper3D-v7"
+    if "(N,)" in obs_section:  # the size stated for the env's options: a base per layout, plus the optional rows
+        sizes = re.search(
+            r'N = (\d+) with `observation="task"` \(default\) or (\d+) with `observation="joint"`,\s+plus (\d+) with '
+            r"`observe_claw_torque` and (\d+) with `cube_rotation`",
+            obs_section,
+        )
+        assert sizes is not None, "the Observation Space states N for every option"
+        task_rows, joint_rows, torque_rows, cube_rows = map(int, sizes.groups())
+        task = env.unwrapped.task
+        stated = {"task": task_rows, "joint": joint_rows}[task.observation]
+        stated += torque_rows * bool(task.observe_claw_torque) + cube_rows * (task.cube_rotation is not None)
+        assert stated == dimension
     low, high = env.action_space.low, env.action_space.high
     action_section = doc.split("## Action Space")[1].split("## Observation Space")[0]
     if np.all(low == low[0]) and np.all(high == high[0]):

@@ -15,8 +15,8 @@ from stable_baselines3.common.env_util import make_vec_env
 
 from sb3_trpo_plus import TRPOPlus
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from trpo_divergence import zero_start_solver  # benchmarks/trpo_divergence.py: sb3-contrib's CG started at 0
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/ is a package beside the installed ones
+from benchmarks.builders import zero_start_solver  # sb3-contrib's CG started at 0
 
 KWARGS = dict(n_steps=128, batch_size=64, n_critic_updates=3, policy_kwargs=dict(net_arch=[32, 32]), seed=3)
 

@@ -8,6 +8,7 @@ import io
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -28,7 +29,14 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNorm
 
 import sb3_trpo_plus.trpo_plus as trpo_plus_module
 from sb3_trpo_plus import TRPOPlus
-from sb3_trpo_plus.agents import RunFileError, load_agent, load_normalization, load_policy, read_run_config
+from sb3_trpo_plus.agents import (
+    RunFileError,
+    load_agent,
+    load_eval_agent,
+    load_normalization,
+    load_policy,
+    read_run_config,
+)
 from sb3_trpo_plus.callbacks import SaveOnInterrupt, save_vec_normalize
 from sb3_trpo_plus.vec_env import RolloutWorkerError, ShardedSubprocVecEnv
 
@@ -337,6 +345,54 @@ def test_damaged_files_in_a_run_are_named_by_load_agent(run_folder: Path, tmp_pa
     for trust_pickle in (False, True):
         with pytest.raises(RunFileError, match=re.escape(str(pkl))):
             load_agent(run, trust_pickle=trust_pickle)
+
+
+@pytest.mark.parametrize("file", ["Pendulum-v1/vecnormalize.pkl", "Pendulum-v1.zip"])
+def test_randomly_flipped_bytes_are_named_on_both_loading_paths(run_folder: Path, tmp_path: Path, file: str) -> None:
+    """A few bytes of a real file set at random, 150 times (seeded): the weights-only and the trusted loader either
+    load the run or raise RunFileError naming the file, whatever the unpickled bytes make Python raise."""
+    run = tmp_path / "trpo_plus" / "Pendulum-v1_1"
+    shutil.copytree(run_folder, run)
+    target = run / file
+    original = target.read_bytes()
+    rng = np.random.default_rng(0)
+    refused = 0
+    for _ in range(150):
+        damaged = bytearray(original)
+        for position in rng.integers(len(original), size=rng.integers(1, 5)):
+            damaged[position] = rng.integers(256)
+        target.write_bytes(bytes(damaged))
+        for trust_pickle in (False, True):
+            try:
+                _, env = load_eval_agent(run, trust_pickle=trust_pickle)
+            except RunFileError as error:
+                assert str(error).startswith(f"{target}: "), error
+                refused += 1
+            else:
+                env.close()
+    assert refused > 150  # most damaged files are refused (a flipped byte can also fall where nothing reads it)
+
+
+def resume_command(logs: Path, model: Path) -> list[str]:
+    """``trpo-plus train -i model``: continue a run (rl-zoo3 unpickles the model and the statistics beside it)."""
+    flags = ["-f", str(logs), "-i", str(model), "-n", "64", "--eval-freq", "-1", "--num-threads", "1", "--device", "cpu"]
+    return ["train", "--env", "Pendulum-v1", *flags, "-params", "n_envs:1", "n_steps:64", "batch_size:64"]
+
+
+@pytest.mark.parametrize("how", ["truncated", "corrupted"])
+@pytest.mark.parametrize("file", ["Pendulum-v1/vecnormalize.pkl", "Pendulum-v1.zip"])
+def test_damaged_files_of_a_resumed_run_are_named(
+    run_folder: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, file: str, how: str
+) -> None:
+    from sb3_trpo_plus import cli
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "argv", list(sys.argv))  # rl-zoo3's train reads its flags from sys.argv
+    run = tmp_path / "logs" / "trpo_plus" / "Pendulum-v1_1"
+    shutil.copytree(run_folder, run)
+    damaged = damaged_copy(run_folder / file, run / file, how)
+    with pytest.raises(RunFileError, match=rf"{re.escape(str(damaged))}: .*(truncated|corrupted)"):
+        cli.main(resume_command(tmp_path / "logs", run / "Pendulum-v1.zip"))
 
 
 # ---------------------------------------------------------------------------------------------- older models

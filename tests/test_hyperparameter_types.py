@@ -1,15 +1,21 @@
-"""Every constructor argument of TRPOPlus accepts its type and range only, and a bad value's error names it.
+"""Every user-facing argument accepts its type and range only, and a bad value's error names it and the value.
 
-The table below has one row per argument of ``TRPOPlus.__init__``; a new argument without a row fails
-``test_table_covers_every_argument``. Booleans are ``bool`` only, integers never ``bool`` or ``float``, numbers
-``int`` or ``float`` (never ``bool`` or ``str``) or a schedule where SB3 takes one, and ``None`` only where the
-default is ``None`` (and ``env``, which SB3's ``load`` gives after construction).
+Each table has one row per argument of its constructor: ``TRPOPlus``, the batched engine (``BatchVecEnv``,
+``make_batch_env``), ``ShardedSubprocVecEnv``, the rollout worker pools and their parts (``InProcessRollouts``,
+``ProcessRollouts``, ``RayRollouts``, ``RolloutWorker``, ``WorkerEnvs``, ``rollout_workers``); a new argument without
+a row fails the table's coverage test. Booleans are ``bool`` only, integers never ``bool`` or ``float``, numbers
+``int`` or ``float`` (never ``bool`` or ``str``) or a schedule where SB3 takes one, names a list or tuple of ``str``
+(never one ``str``), and ``None`` only where the default is ``None`` (and ``env``, which SB3's ``load`` gives after
+construction).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
+import multiprocessing as mp
 import pathlib
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import gymnasium as gym
@@ -20,13 +26,28 @@ from stable_baselines3.common.buffers import DictRolloutBuffer, ReplayBuffer, Ro
 from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from sb3_trpo_plus import TRPOPlus
+from grasp_envs import make_batch_env
+from grasp_envs.batch import BatchVecEnv
+from grasp_envs.wrappers import ScriptedStarts
+from sb3_trpo_plus import TRPOPlus, rollouts
+from sb3_trpo_plus.rollouts import (
+    InProcessRollouts,
+    ProcessRollouts,
+    RayRollouts,
+    RolloutWorker,
+    RolloutWorkers,
+    WorkerEnvs,
+    buried_rollout_workers,
+    rollout_workers,
+)
 from sb3_trpo_plus.trpo_plus import HYPERPARAMETER_RULES, validate_hyperparameters
+from sb3_trpo_plus.vec_env import ShardedSubprocVecEnv
 
 
 class Row(NamedTuple):
     valid: list[Any]
     invalid: list[Any]
+    context: dict[str, Any] | None = None  # other arguments the row's values need (the task they run on, ...)
 
 
 def _schedule(progress_remaining: float) -> float:
@@ -147,3 +168,239 @@ def test_numbers_reach_sb3_schedules_as_floats(env: DummyVecEnv) -> None:
     model = TRPOPlus("MlpPolicy", env, learning_rate=np.float32(1e-3), target_kl=np.float32(0.02), n_steps=8, batch_size=8)
     assert type(model.learning_rate) is float and type(model.target_kl) is float
     assert model.current_target_kl == pytest.approx(0.02)
+
+
+# ---------------------------------------------------------------------- the other user-facing constructors
+NOT_NAMES = ["is_success", b"is_success", [1], ("is_success", None), {"is_success": 1}, True]
+NOT_PATH = [1, True, ["monitor"]]
+NOT_KEYWORDS = ["probability=0.5", [("probability", 0.5)], {1: 0.5}, True]
+
+
+def _pendulum() -> gym.Env:
+    return gym.make("Pendulum-v1")
+
+
+class Constructor(NamedTuple):
+    """A user-facing constructor (or function) and the table of its arguments.
+
+    ``required``: values of the arguments without a default; ``forwards_to``: the constructor whose arguments its
+    ``**kwargs`` takes (the table covers those too); ``error``: the start of the message naming argument ``{}``.
+    """
+
+    call: Callable[..., Any]
+    required: dict[str, Any]
+    table: dict[str, Row]
+    error: str
+    forwards_to: Callable[..., Any] | None = None
+
+
+def _arguments(constructor: Constructor) -> dict[str, inspect.Parameter]:
+    """Every argument the table must cover: the signature's, the forwarded constructor's, never the task options that
+    ``**options`` takes (each task checks its own)."""
+    own = inspect.signature(constructor.call).parameters
+    forwarded = inspect.signature(constructor.forwards_to).parameters if constructor.forwards_to else {}
+    merged = {**forwarded, **own}
+    return {name: p for name, p in merged.items() if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)}
+
+
+BATCH_TABLE: dict[str, Row] = {
+    "env_id": Row(["Reacher2D-v1", "Grasper3D-v7"], [42, b"Reacher2D-v1", ["Reacher2D-v1"]]),
+    "n_envs": Row([1, 3, np.int64(2)], [0, -1, *NOT_INT]),
+    "n_threads": Row([0, 1, 2, np.int64(1)], [-1, *NOT_INT]),
+    "seed": Row([None, 0, 7, np.int64(3)], [-1, *NOT_INT]),
+    "scripted_starts": Row([None, {}, {"probability": 0.5, "steps": (0, 5)}], NOT_KEYWORDS, {"env_id": "Grasper3D-v7"}),
+    "wrapper_class": Row(
+        [None, ScriptedStarts],
+        ["ScriptedStarts", gym.wrappers.ClipAction, ScriptedStarts.__init__, 1],
+        {"env_id": "Grasper3D-v7"},
+    ),
+    "wrapper_kwargs": Row(
+        [None, {}, {"probability": 0.5}], NOT_KEYWORDS, {"env_id": "Grasper3D-v7", "wrapper_class": ScriptedStarts}
+    ),
+    "monitor": Row([True, False], NOT_BOOL),
+    "monitor_file": Row([None, "batch", pathlib.Path("batch")], NOT_PATH, {"monitor": True}),
+    "info_keywords": Row([(), ["is_success"], ("is_success",)], NOT_NAMES),
+}
+
+POOL_TABLE: dict[str, Row] = {
+    "env_id": Row(["Reacher2D-v1", "Pendulum-v1"], [42, b"Reacher2D-v1", ["Reacher2D-v1"]]),
+    "num_workers": Row([1, 2, np.int64(1)], [0, -1, *NOT_INT]),
+    "envs_per_worker": Row([1, 2, np.int64(1)], [0, -1, *NOT_INT]),
+    "seed": Row([None, 0, 7, np.int64(3)], [-1, *NOT_INT]),
+    "sim_threads": Row([0, 1, 2], [-1, *NOT_INT]),
+    "env_kwargs": Row([None, {}, {"frame_skip": 2}], ["frame_skip=2", [("frame_skip", 2)], {1: 2}, True]),
+    "scripted_starts": Row([None, {}, {"probability": 0.5}], NOT_KEYWORDS, {"env_id": "Grasper3D-v7"}),
+    "info_keywords": Row([None, (), ["is_success"], ("is_success",)], NOT_NAMES),
+    "monitor_file": Row([None, "pool", pathlib.Path("pool")], NOT_PATH),
+    "max_restarts": Row([0, 3, np.int64(1)], [-1, *NOT_INT]),
+    # ProcessRollouts
+    "start_method": Row([None, *mp.get_all_start_methods()], ["thread", "", 1, True]),
+    # RayRollouts
+    "address": Row([None, "auto", "127.0.0.1:6379"], [1, True, ["auto"]]),
+    "cpus_per_worker": Row([0, 0.5, 1, 2.0], [-1, -0.5, *NOT_NUMBER]),
+    "placement_timeout": Row([0.5, 1, 120.0], [0, -1.0, *NOT_NUMBER]),
+}
+
+CONSTRUCTORS: dict[str, Constructor] = {
+    "BatchVecEnv": Constructor(BatchVecEnv, {"env_id": "Reacher2D-v1", "n_envs": 1}, BATCH_TABLE, "{} must be "),
+    "make_batch_env": Constructor(make_batch_env, {"env_id": "Reacher2D-v1"}, BATCH_TABLE, "{} must be "),
+    "ShardedSubprocVecEnv": Constructor(
+        ShardedSubprocVecEnv,
+        # one env in the learner's process: no worker process, but where a row asks for one (in_process=False)
+        {"env_fns": [_pendulum], "in_process": True},
+        {
+            "env_fns": Row([[_pendulum], (_pendulum,)], [[], _pendulum, "Pendulum-v1", [None], ["Pendulum-v1"]]),
+            "n_workers": Row([None, 1, 4, np.int64(1)], [0, -1, *NOT_INT]),
+            "start_method": Row([None, *mp.get_all_start_methods()], ["thread", "", 1, True]),
+            "in_process": Row([True, False], NOT_BOOL),
+        },
+        "ShardedSubprocVecEnv: `{}` must be ",
+    ),
+    **{
+        pool.__name__: Constructor(
+            pool,
+            {"env_id": "Reacher2D-v1", "num_workers": 1, "envs_per_worker": 1},
+            POOL_TABLE,
+            f"{pool.__name__}: `{{}}` must be ",
+            forwards_to=RolloutWorkers,
+        )
+        for pool in (InProcessRollouts, ProcessRollouts, RayRollouts)
+    },
+    "RolloutWorker": Constructor(
+        RolloutWorker,
+        {"index": 0, "envs": WorkerEnvs("Reacher2D-v1", 1), "torch_seed": None},
+        {
+            "index": Row([0, 3, np.int64(1)], [-1, *NOT_INT]),
+            "envs": Row([WorkerEnvs("Reacher2D-v1", 2)], ["Reacher2D-v1", {"env_id": "Reacher2D-v1", "n_envs": 1}]),
+            "torch_seed": Row([None, 0, 2**32, np.int64(5)], [-1, *NOT_INT]),
+        },
+        "RolloutWorker: `{}` must be ",
+    ),
+    "WorkerEnvs": Constructor(
+        WorkerEnvs,
+        {"env_id": "Reacher2D-v1", "n_envs": 1},
+        {
+            "env_id": POOL_TABLE["env_id"],
+            "n_envs": Row([1, 4, np.int64(2)], [0, *NOT_INT]),
+            "sim_threads": POOL_TABLE["sim_threads"],
+            "env_kwargs": Row([{}, {"frame_skip": 2}], ["frame_skip=2", [("frame_skip", 2)], {1: 2}, True]),
+            "scripted_starts": POOL_TABLE["scripted_starts"],
+            "info_keywords": Row([(), ["is_success"], ("is_success",)], NOT_NAMES),
+        },
+        "WorkerEnvs: `{}` must be ",
+    ),
+    **{
+        function.__name__: Constructor(
+            function,
+            {},
+            {"env": Row([DummyVecEnv([_pendulum])], [42, "Pendulum-v1", object()])},
+            f"{function.__name__}: `{{}}` must be ",
+        )
+        for function in (rollout_workers, buried_rollout_workers)
+    },
+}
+
+
+@pytest.fixture
+def in_tmp_path(monkeypatch: pytest.MonkeyPatch, tmp_path: pathlib.Path) -> None:
+    """Monitor files named by a relative path land in ``tmp_path``."""
+    monkeypatch.chdir(tmp_path)
+
+
+@pytest.fixture
+def pools_in_process(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every pool's workers run in this process (no worker processes, no Ray): the values reach them fast."""
+    for pool in (ProcessRollouts, RayRollouts):
+        monkeypatch.setattr(pool, "_make_backend", lambda self: rollouts._InProcessBackend())
+
+
+@pytest.fixture
+def no_workers(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A pool that starts a worker (a process, Ray) before it checked its arguments fails the test."""
+
+    def refuse(self: RolloutWorkers) -> Any:
+        raise AssertionError(f"{type(self).__name__} started its workers before it checked its arguments")
+
+    for pool in (InProcessRollouts, ProcessRollouts, RayRollouts):
+        monkeypatch.setattr(pool, "_make_backend", refuse)
+
+
+def _run(constructor: Constructor, name: str, value: Any) -> Any:
+    """Call the constructor with ``name=value`` (and the row's context), and close what it built."""
+    result = constructor.call(**{**constructor.required, **(constructor.table[name].context or {}), name: value})
+    close = getattr(result, "close", None)
+    if callable(close):
+        close()
+    return result
+
+
+@pytest.mark.parametrize("label", CONSTRUCTORS)
+def test_constructor_table_covers_every_argument(label: str) -> None:
+    constructor = CONSTRUCTORS[label]
+    assert set(_arguments(constructor)) <= set(constructor.table), f"every {label} argument needs a row"
+    for name, row in constructor.table.items():
+        assert row.valid and row.invalid, name
+
+
+def test_shared_tables_have_no_row_without_an_argument() -> None:
+    pools = (InProcessRollouts, ProcessRollouts, RayRollouts)
+    arguments = {name for pool in pools for name in _arguments(CONSTRUCTORS[pool.__name__])}
+    assert set(POOL_TABLE) == arguments
+    assert set(BATCH_TABLE) == set(_arguments(CONSTRUCTORS["BatchVecEnv"])) | set(_arguments(CONSTRUCTORS["make_batch_env"]))
+
+
+def _default(constructor: Constructor, name: str) -> Any:
+    """The argument's default; ``inspect.Parameter.empty`` where it has none or a dataclass field's factory makes it."""
+    if dataclasses.is_dataclass(constructor.call):
+        field = {field.name: field for field in dataclasses.fields(constructor.call)}[name]
+        return inspect.Parameter.empty if field.default is dataclasses.MISSING else field.default
+    return _arguments(constructor)[name].default
+
+
+def _constructor_cases(valid: bool) -> list[Any]:
+    cases = []
+    for label, constructor in CONSTRUCTORS.items():
+        for name in _arguments(constructor):
+            row = constructor.table[name]
+            values = list(row.valid if valid else row.invalid)
+            default = _default(constructor, name)
+            if valid and default is not inspect.Parameter.empty:
+                values.append(default)  # every default is valid
+            if not valid and default is not None and not any(value is None for value in row.valid):
+                values.append(None)  # None is a value only where the default is None (or the row says so)
+            cases += [pytest.param(label, name, value, id=f"{label}-{name}-{i}") for i, value in enumerate(values)]
+    return cases
+
+
+@pytest.mark.usefixtures("in_tmp_path", "pools_in_process")
+@pytest.mark.parametrize(("label", "name", "value"), _constructor_cases(valid=True))
+def test_valid_argument_is_accepted(label: str, name: str, value: Any) -> None:
+    _run(CONSTRUCTORS[label], name, value)
+
+
+@pytest.mark.usefixtures("no_workers")
+@pytest.mark.parametrize(("label", "name", "value"), _constructor_cases(valid=False))
+def test_invalid_argument_is_named(label: str, name: str, value: Any) -> None:
+    constructor = CONSTRUCTORS[label]
+    with pytest.raises(ValueError) as error:
+        _run(constructor, name, value)
+    message = str(error.value)
+    assert message.startswith(constructor.error.format(name)), message
+    assert message.endswith(f"got {value!r}"), message
+
+
+def test_one_str_is_no_sequence_of_info_keys() -> None:
+    """A str is refused where info keys are asked for (it would be recorded as its characters)."""
+    with pytest.raises(ValueError, match="info_keywords must be a list or tuple of str \\(not one str\\), got 'is_success'"):
+        make_batch_env("Reacher2D-v1", info_keywords="is_success")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="InProcessRollouts: `info_keywords` must be None or a list or tuple of str"):
+        InProcessRollouts("Reacher2D-v1", 1, 1, info_keywords="is_success")  # type: ignore[arg-type]
+    assert WorkerEnvs("Reacher2D-v1", 1, info_keywords=["is_success"]).info_keywords == ("is_success",)  # type: ignore[arg-type]
+
+
+def test_monitor_files_given_as_paths_are_written(tmp_path: pathlib.Path) -> None:
+    batch = make_batch_env("Reacher2D-v1", 2, monitor_file=tmp_path / "batch")
+    batch.close()
+    pool = InProcessRollouts("Reacher2D-v1", 1, 2, monitor_file=tmp_path / "pool")
+    pool.close()
+    assert (tmp_path / "batch.monitor.csv").is_file() and (tmp_path / "pool.monitor.csv").is_file()

@@ -211,22 +211,76 @@ def test_a_process_worker_that_dies_mid_segment_is_restarted_and_its_segment_col
     check_restart_after_a_crash(ProcessRollouts, tmp_path)
 
 
-def test_a_dead_worker_beyond_its_restarts_names_itself_and_leaves_the_weights(tmp_path) -> None:
-    pool = ProcessRollouts(
-        CRASH, num_workers=2, envs_per_worker=2, seed=0, env_kwargs={"marker": str(tmp_path / "crashed"), "at_step": 20}
-    )
+def check_crash_beyond_restarts(pool_class, tmp_path, cause: str) -> None:
+    """One of two workers exits mid-segment with no restart left: the error names that worker, its envs and how it
+    ended, and the weights are those before the segment (the first: no update ran)."""
+    pool = pool_class(
+        CRASH, num_workers=2, envs_per_worker=2, seed=0, max_restarts=0,
+        env_kwargs={"marker": str(tmp_path / "crashed"), "at_step": 20},
+    )  # fmt: skip
     try:
         model = TRPOPlus("MlpPolicy", pool, seed=0, **SMALL)
         before = parameters(model)
+        worker = r"(worker 0 \(pid \d+ on .*\) stepping envs 0-1|worker 1 \(pid \d+ on .*\) stepping envs 2-3)"
         message = (
-            r"ProcessRollouts worker [01] \(pid \d+ on .*\) stepping envs [0-3]-[0-3] \(crashing_env:CrashOnce-v0\) died: "
-            r"exit code 3 \(restarted 0 times of max_restarts=0\)"
+            rf"{pool_class.__name__} {worker} \(crashing_env:CrashOnce-v0\) died: {cause} "
+            r"\(restarted 0 times of max_restarts=0\)"
         )
         with pytest.raises(RolloutWorkerError, match=message):
             model.learn(2 * SMALL["n_steps"] * pool.num_envs)
+        assert (tmp_path / "crashed").exists() and model._n_updates == 0
         assert th.equal(before, parameters(model))
     finally:
         pool.close()
+
+
+class KillDuringFirstSegment(BaseCallback):
+    """SIGKILLs a pool's worker ``delay`` seconds into the first segment; keeps the weights each rollout started with."""
+
+    def __init__(self, pool, worker: int, delay: float):
+        super().__init__()
+        self.pool, self.worker, self.delay = pool, worker, delay
+        self.timer: threading.Timer | None = None
+        self.before: th.Tensor | None = None
+
+    def _on_rollout_start(self) -> None:
+        self.before = parameters(self.model)
+        if self.timer is None:
+            self.timer = _kill_worker_soon(self.pool, self.worker, self.delay)
+
+    def _on_step(self) -> bool:
+        return True
+
+
+def check_kill_beyond_restarts(pool, cause: str) -> None:
+    """SIGKILL to worker 1 of a pool on a grasp_envs id (the batched engine inside each worker) in the middle of the
+    first segment, no restart left: the error names the worker and its envs, and no update ran."""
+    try:
+        model = TRPOPlus("MlpPolicy", pool, seed=0, **{**SMALL, "n_steps": 400, "batch_size": 400})  # segments of ~1 s
+        before = parameters(model)
+        killer = KillDuringFirstSegment(pool, worker=1, delay=0.3)
+        message = (
+            rf"{type(pool).__name__} worker 1 \(pid {pool.workers[1]['pid']} on .*\) stepping envs 2-3 \(Grasper3D-v7\) "
+            rf"died: {cause} \(restarted 0 times of max_restarts=0\)"
+        )
+        with pytest.raises(RolloutWorkerError, match=message):
+            model.learn(2 * 400 * pool.num_envs, callback=killer)
+        assert killer.timer is not None
+        killer.timer.join()
+        assert model._n_updates == 0
+        assert th.equal(before, killer.before) and th.equal(before, parameters(model))
+    finally:
+        pool.close()
+
+
+def test_a_dead_worker_beyond_its_restarts_names_itself_and_leaves_the_weights(tmp_path) -> None:
+    check_crash_beyond_restarts(ProcessRollouts, tmp_path, "exit code 3")
+
+
+def test_a_killed_batched_engine_worker_beyond_its_restarts_names_itself_and_leaves_the_weights() -> None:
+    check_kill_beyond_restarts(
+        ProcessRollouts("Grasper3D-v7", num_workers=2, envs_per_worker=2, seed=0, max_restarts=0), "killed by SIGKILL"
+    )
 
 
 def test_a_worker_killed_by_a_signal_is_restarted() -> None:
@@ -274,11 +328,11 @@ def test_an_error_inside_a_worker_surfaces_with_its_traceback() -> None:
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"num_workers": 0}, "`num_workers` must be an int >= 1, got 0"),
-        ({"envs_per_worker": True}, "`envs_per_worker` must be an int >= 1, got True"),
-        ({"seed": "1"}, "`seed` must be an int or None, got '1'"),
-        ({"max_restarts": 1.5}, "`max_restarts` must be an int >= 0, got 1.5"),
-        ({"sim_threads": -1}, "`sim_threads` must be an int >= 0, got -1"),
+        ({"num_workers": 0}, "`num_workers` must be an integer >= 1, got 0"),
+        ({"envs_per_worker": True}, "`envs_per_worker` must be an integer >= 1, got True"),
+        ({"seed": "1"}, "`seed` must be None or an integer >= 0, got '1'"),
+        ({"max_restarts": 1.5}, "`max_restarts` must be an integer >= 0, got 1.5"),
+        ({"sim_threads": -1}, "`sim_threads` must be an integer >= 0, got -1"),
     ],
 )
 def test_bad_pool_arguments_are_named(kwargs, message) -> None:

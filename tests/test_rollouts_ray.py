@@ -6,7 +6,14 @@ import os
 
 import pytest
 import torch as th
-from test_rollouts import check_restart_after_a_crash, check_restart_after_a_kill, parameters, train
+from test_rollouts import (
+    check_crash_beyond_restarts,
+    check_kill_beyond_restarts,
+    check_restart_after_a_crash,
+    check_restart_after_a_kill,
+    parameters,
+    train,
+)
 
 from sb3_trpo_plus import TRPOPlus
 from sb3_trpo_plus.rollouts import InProcessRollouts, RayRollouts, RolloutWorkerError
@@ -14,6 +21,7 @@ from sb3_trpo_plus.rollouts import InProcessRollouts, RayRollouts, RolloutWorker
 ray = pytest.importorskip("ray")  # the `ray` extra; CI installs it
 
 pytestmark = pytest.mark.xdist_group("ray")  # one Ray instance at a time on this machine
+RAY_DEATH = r"(RayActorError|ActorDiedError): .+"  # how Ray reports an actor whose process died
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -51,6 +59,16 @@ def test_ray_workers_train_the_in_process_workers_parameters(num_workers: int) -
 
 def test_a_ray_worker_that_dies_mid_segment_is_restarted(tmp_path) -> None:
     check_restart_after_a_crash(RayRollouts, tmp_path)
+
+
+def test_a_dead_ray_worker_beyond_its_restarts_names_itself_and_leaves_the_weights(tmp_path) -> None:
+    check_crash_beyond_restarts(RayRollouts, tmp_path, RAY_DEATH)
+
+
+def test_a_killed_batched_engine_ray_worker_beyond_its_restarts_names_itself_and_leaves_the_weights() -> None:
+    check_kill_beyond_restarts(
+        RayRollouts("Grasper3D-v7", num_workers=2, envs_per_worker=2, seed=0, max_restarts=0), RAY_DEATH
+    )
 
 
 def test_a_ray_worker_killed_by_a_signal_is_restarted() -> None:

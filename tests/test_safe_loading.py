@@ -8,6 +8,8 @@ import json
 import os
 import pickle
 import re
+import shutil
+import sys
 import zipfile
 from collections import OrderedDict
 from pathlib import Path
@@ -130,6 +132,68 @@ def test_enjoy_and_record_video_refuse_code_in_yaml(run: Path, marker: Path) -> 
     with pytest.raises(RunFileError, match=r"args\.yml: refused"):
         cli.enjoy([*base, "--trust-pickle"])  # checked before rl-zoo3 reads it with yaml.UnsafeLoader
     assert not marker.exists()
+
+
+CODE_STRINGS_IN_RUN = [
+    ("config.yml", "normalize"),
+    ("config.yml", "policy_kwargs"),
+    ("config.yml", "monitor_kwargs"),
+    ("args.yml", "env_kwargs"),  # rl-zoo3 passes it to the env constructor as it is
+]
+
+
+@pytest.mark.parametrize("trust_pickle", [False, True], ids=["weights-only", "trust-pickle"])
+@pytest.mark.parametrize(("file", "key"), CODE_STRINGS_IN_RUN, ids=[f"{f}-{k}" for f, k in CODE_STRINGS_IN_RUN])
+def test_enjoy_and_record_video_refuse_code_strings(
+    run: Path, marker: Path, monkeypatch: pytest.MonkeyPatch, file: str, key: str, trust_pickle: bool
+) -> None:
+    monkeypatch.setattr(sys, "argv", list(sys.argv))  # rl-zoo3's enjoy reads its flags from sys.argv
+    path = run / "Pendulum-v1" / file
+    code = CODE_STRINGS.get(key, "__import__('os').system('touch {marker}')").format(marker=marker)
+    if file == "config.yml":
+        path.write_text(yaml.safe_dump({"policy": "MlpPolicy", "normalize": True, key: code}))
+    else:
+        path.write_text(yaml.safe_dump({"algo": "trpo_plus", "env": "Pendulum-v1", key: code}))
+    trust = ["--trust-pickle"] if trust_pickle else []
+    base = ["--env", "Pendulum-v1", "-f", str(run.parents[1]), "--exp-id", "1", "-n", "5", *trust]
+    for argv in ([*base, "--no-render"], base):
+        command = cli.enjoy if "--no-render" in argv else cli.record_video
+        with pytest.raises(RunFileError, match=rf"{re.escape(str(path))}: .*{key}"):
+            command(argv)
+    assert not marker.exists()
+
+
+DOWNLOADED_CODE = {
+    "config-tag": ("config.yml", 'normalize: !!python/object/apply:os.system ["touch {marker}"]\n'),
+    "config-normalize-string": ("config.yml", "normalize: \"__import__('os').system('touch {marker}')\"\n"),
+    "args-tag": ("args.yml", 'env_kwargs: !!python/object/apply:os.system ["touch {marker}"]\n'),
+}
+
+
+@pytest.mark.parametrize("case", sorted(DOWNLOADED_CODE))
+def test_enjoy_checks_a_run_downloaded_from_the_hub_before_rl_zoo3_reads_it(
+    run: Path, marker: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, case: str
+) -> None:
+    """rl-zoo3's enjoy downloads a run it does not find under an ``rl-trained-agents`` folder; the downloaded YAML
+    is checked before rl-zoo3 reads it with ``yaml.UnsafeLoader`` and evaluates ``normalize``."""
+    import rl_zoo3.enjoy
+
+    monkeypatch.setattr(sys, "argv", list(sys.argv))
+    file, text = DOWNLOADED_CODE[case]
+    folder = tmp_path / "rl-trained-agents"
+    downloaded: list[Path] = []
+
+    def download_from_hub(algo: str, env_name: Any, exp_id: int, folder: str, **_: Any) -> None:
+        target = Path(folder, algo, f"{env_name}_1")  # the hub's copy of the run, code in its YAML
+        shutil.copytree(run, target)
+        (target / "Pendulum-v1" / file).write_text(text.format(marker=marker))
+        downloaded.append(target)
+
+    monkeypatch.setattr(rl_zoo3.enjoy, "download_from_hub", download_from_hub)
+    path = folder / "trpo_plus" / "Pendulum-v1_1" / "Pendulum-v1" / file
+    with pytest.raises(RunFileError, match=rf"{re.escape(str(path))}: .*refused"):
+        cli.enjoy(["--env", "Pendulum-v1", "-f", str(folder), "--trust-pickle", "-n", "5", "--no-render"])
+    assert downloaded and not marker.exists()
 
 
 def test_malformed_ordered_dict_is_refused(tmp_path: Path) -> None:

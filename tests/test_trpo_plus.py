@@ -146,6 +146,21 @@ def test_callbacks_progress_bar_and_tensorboard(tmp_path: pathlib.Path) -> None:
     assert np.isfinite(mean)
 
 
+def test_episode_stats_records_every_finished_training_episode() -> None:
+    """``EpisodeStats``: (return, success, length) of each episode the Monitor closes, as the Monitor counts them."""
+    import grasp_envs  # noqa: F401  (registers the envs)
+    from sb3_trpo_plus.callbacks import EpisodeStats
+
+    env = make_vec_env("Reacher2D-v1", n_envs=2, seed=0)  # 50-step episodes
+    stats = EpisodeStats()
+    TRPOPlus("MlpPolicy", env, seed=0, **TINY).learn(2 * 64 * 2, callback=stats)  # 128 steps per env: 2 episodes each
+    monitors = env.envs  # type: ignore[attr-defined]
+    returns = sorted(r for m in monitors for r in m.get_episode_rewards())
+    assert sorted(r for r, _, _ in stats.episodes) == pytest.approx(returns, abs=1e-5)  # the Monitor's rounded record
+    assert [length for _, _, length in stats.episodes] == [50] * 4
+    assert all(isinstance(success, bool) for _, success, _ in stats.episodes)
+
+
 def test_logs_the_promised_keys(tmp_path: pathlib.Path) -> None:
     model = TRPOPlus("MlpPolicy", "Pendulum-v1", replay_memory=1, cg_warm_start=True, **TINY)
     model.set_logger(configure(str(tmp_path), ["csv"]))
@@ -249,14 +264,9 @@ def test_nan_never_reaches_the_policy(monkeypatch) -> None:
     model = TRPOPlus("MlpPolicy", "Pendulum-v1", **TINY)
     model.learn(64)
     before = _params(model)
-    original_get = model.rollout_buffer.get
-
-    def poisoned(batch_size=None):
-        for data in original_get(batch_size):
-            yield data._replace(advantages=data.advantages * float("nan"), returns=data.returns * float("nan"))
-
+    model.rollout_buffer.advantages[:] = np.nan  # what the policy step and the critic read
+    model.rollout_buffer.returns[:] = np.nan
     monkeypatch.setattr(model, "collect_rollouts", lambda *a, **k: True)
-    monkeypatch.setattr(model.rollout_buffer, "get", poisoned)
     model.train()
     for name, value in _params(model).items():
         assert np.all(np.isfinite(value)), name
@@ -351,3 +361,60 @@ def test_load_seeds_as_sb3_and_resuming_restores_the_runs_generators(tmp_path: p
     resumed = TRPOPlus.load(tmp_path / "again.zip", env=make_vec_env("Pendulum-v1"), force_reset=False)
     resumed._setup_learn(64, reset_num_timesteps=False)
     assert np.random.random() == saved_next
+
+
+# ----------------------------------------------------------------------------- the collection path
+class _NaNAfter(gym.Wrapper):
+    """Pendulum whose observation turns NaN at its ``after``-th step."""
+
+    def __init__(self, env: gym.Env, after: int = 5):
+        super().__init__(env)
+        self.after, self.steps = after, 0
+
+    def step(self, action):  # type: ignore[no-untyped-def]
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.steps += 1
+        return (obs * np.nan if self.steps >= self.after else obs), reward, terminated, truncated, info
+
+
+def test_a_non_finite_observation_is_named_before_the_policy_sees_it() -> None:
+    env = DummyVecEnv([lambda: gym.make("Pendulum-v1"), lambda: _NaNAfter(gym.make("Pendulum-v1"))])
+    model = TRPOPlus("MlpPolicy", env, seed=0, **TINY)
+    before = _params(model)
+    with pytest.raises(ValueError, match="env 1 returned a non-finite observation"):
+        model.learn(64 * 2)
+    assert all(np.array_equal(before[k], v) for k, v in _params(model).items())
+
+
+def test_collection_leaves_torch_distribution_checks_as_they_were() -> None:
+    from torch.distributions import Distribution
+
+    previous = Distribution._validate_args
+    try:
+        for setting in (True, False):
+            Distribution.set_default_validate_args(setting)
+            TRPOPlus("MlpPolicy", "Pendulum-v1", seed=0, **TINY).learn(64)
+            assert Distribution._validate_args is setting
+        Distribution.set_default_validate_args(True)
+        env = DummyVecEnv([lambda: _NaNAfter(gym.make("Pendulum-v1"), after=3)])
+        with pytest.raises(ValueError, match="non-finite observation"):
+            TRPOPlus("MlpPolicy", env, seed=0, **TINY).learn(64)
+        assert Distribution._validate_args is True  # restored when collection raised
+    finally:
+        Distribution.set_default_validate_args(previous)
+
+
+def test_critic_minibatches_are_the_rollout_buffers() -> None:
+    """The critic reads its minibatches straight from the buffer's arrays: the same samples, in the same order, from
+    the same draws of NumPy's generator as ``RolloutBuffer.get``."""
+    model = TRPOPlus("MlpPolicy", make_vec_env("Pendulum-v1", n_envs=2, seed=0), seed=0, **{**TINY, "batch_size": 48})
+    model.learn(128)  # a full, flattened buffer
+    buffer = model.rollout_buffer
+    state = np.random.get_state()
+    expected = [(data.observations, data.returns) for data in buffer.get(model.batch_size)]
+    np.random.set_state(state)
+    got = list(model._critic_minibatches([]))
+    assert [len(r) for _, r in got] == [48, 48, 32]
+    assert len(got) == len(expected)
+    for (obs, returns), (obs_expected, returns_expected) in zip(got, expected, strict=True):
+        assert th.equal(obs, obs_expected) and th.equal(returns, returns_expected)

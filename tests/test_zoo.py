@@ -1,13 +1,16 @@
 """Zoo YAML, the trpo-plus command (train, -i, enjoy, record-video, plot) and the docs build."""
 
+import inspect
 import re
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 from rl_zoo3.utils import get_wrapper_class
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
@@ -95,6 +98,73 @@ def test_bad_yaml_gives_error_naming_file_and_key(tmp_path: Path, text: str, mes
     with pytest.raises(HyperparameterError, match=re.escape(message)) as error:
         load_hyperparameters(path, "trpo_plus")
     assert str(path) in str(error.value)
+
+
+# YAML values of the wrong type for a constructor argument, by the type of its default: an int default takes no float
+# (`n_steps: 64.0`) and no bool, a bool default no number or text, a float default (an int is fine) no bool or list, a
+# str default no number or bool. An argument whose default is None takes several types.
+WRONG_YAML_VALUES: dict[type, list[Any]] = {
+    bool: [1, 0.0, "no", [True]],
+    int: [64.0, 1e6, True, "64", [64]],
+    float: [True, "0.5", [0.5]],
+    str: [1, True, ["auto"]],
+}
+NOT_YAML_KEYS = {"policy", "env", "_init_setup_model"}  # the zoo gives these itself
+
+
+def _constructor_defaults(algo: str) -> dict[str, Any]:
+    parameters = inspect.signature(algorithms()[algo]).parameters
+    return {name: p.default for name, p in parameters.items() if name not in NOT_YAML_KEYS}
+
+
+def _write_entry(path: Path, hyperparameters: dict[str, Any]) -> Path:
+    entry = {"n_timesteps": 1000, "policy": "MlpPolicy", **hyperparameters}
+    path.write_text(yaml.safe_dump({"Pendulum-v1": entry}))
+    return path
+
+
+@pytest.mark.parametrize("algo", ALGO_FILES)
+def test_yaml_type_table_covers_every_constructor_argument(algo: str) -> None:
+    for name, default in _constructor_defaults(algo).items():
+        assert default is None or type(default) in WRONG_YAML_VALUES, f"{algo}: {name} needs a row in WRONG_YAML_VALUES"
+
+
+@pytest.mark.parametrize("algo", ALGO_FILES)
+def test_yaml_values_of_the_defaults_type_are_accepted(tmp_path: Path, algo: str) -> None:
+    defaults = {name: value for name, value in _constructor_defaults(algo).items() if value is not None}
+    loaded = load_hyperparameters(_write_entry(tmp_path / "defaults.yml", defaults), algo)["Pendulum-v1"]
+    assert {name: loaded[name] for name in defaults} == defaults
+    as_ints = {name: int(value) for name, value in defaults.items() if type(value) is float}  # an int where a float is
+    load_hyperparameters(_write_entry(tmp_path / "ints.yml", as_ints), algo)
+
+
+def _wrong_yaml_cases() -> list[Any]:
+    return [
+        pytest.param(algo, name, value, id=f"{algo}-{name}-{i}")
+        for algo in ALGO_FILES
+        for name, default in _constructor_defaults(algo).items()
+        if default is not None
+        for i, value in enumerate(WRONG_YAML_VALUES[type(default)])
+    ]
+
+
+@pytest.mark.parametrize(("algo", "name", "value"), _wrong_yaml_cases())
+def test_yaml_value_of_another_type_is_named_with_its_file_and_entry(tmp_path: Path, algo: str, name: str, value: Any) -> None:
+    path = _write_entry(tmp_path / "wrong.yml", {name: value})
+    with pytest.raises(HyperparameterError) as error:
+        load_hyperparameters(path, algo)
+    message = str(error.value)
+    assert message.startswith(f"{path}: Pendulum-v1: {name}: expected "), message
+    assert message.endswith(repr(value)), message
+
+
+def test_a_float_is_no_int_but_n_timesteps_takes_rl_zoos_float(tmp_path: Path) -> None:
+    path = tmp_path / "steps.yml"
+    path.write_text("Pendulum-v1:\n  n_timesteps: !!float 1e6\n  policy: MlpPolicy\n  n_steps: 64.0\n")
+    with pytest.raises(HyperparameterError, match=re.escape(f"{path}: Pendulum-v1: n_steps: expected int, got float 64.0")):
+        load_hyperparameters(path, "trpo_plus")
+    path.write_text("Pendulum-v1:\n  n_timesteps: !!float 1e6\n  policy: MlpPolicy\n  n_steps: 64\n")
+    assert load_hyperparameters(path, "trpo_plus")["Pendulum-v1"]["n_timesteps"] == 1e6
 
 
 def _tensorboard_tags(folder: Path) -> set[str]:

@@ -1,0 +1,116 @@
+"""What user-facing arguments accept, and errors that name the argument and its value.
+
+Each constructor keeps a table ``{argument: Rule}`` and checks its arguments with :func:`check_arguments` before it
+builds anything. Booleans are ``bool`` only; integers are ``int`` (or numpy integers), never ``bool`` or ``float``;
+numbers are finite ``int`` or ``float`` (or numpy numbers), never ``bool`` or ``str``; sequences of names are lists
+or tuples of ``str``, never one ``str``; ``None`` only where the argument's default is ``None``.
+"""
+
+from __future__ import annotations
+
+import math
+import types
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, NamedTuple
+
+import numpy as np
+
+
+class Rule(NamedTuple):
+    """What one argument accepts, and that requirement in words (as the error message states it)."""
+
+    accepts: Callable[[Any], bool]
+    requirement: str
+
+
+def is_bool(value: Any) -> bool:
+    return isinstance(value, bool)
+
+
+def is_int(value: Any) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def is_finite_number(value: Any) -> bool:
+    if not isinstance(value, int | float | np.integer | np.floating) or isinstance(value, bool):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an int beyond float's range
+        return False
+
+
+def is_schedule(value: Any) -> bool:
+    """A function of the remaining progress (a class is callable too, but is no schedule)."""
+    return callable(value) and not isinstance(value, type)
+
+
+def is_names(value: Any) -> bool:
+    """A list or tuple of ``str`` (one ``str`` is a sequence of characters, not of names)."""
+    return isinstance(value, list | tuple) and all(isinstance(item, str) for item in value)
+
+
+def is_keywords(value: Any) -> bool:
+    """A dict that can be passed as ``**value``: its keys are ``str``."""
+    return isinstance(value, dict) and all(isinstance(key, str) for key in value)
+
+
+def boolean() -> Rule:
+    return Rule(is_bool, "a bool (True or False)")
+
+
+def integer(minimum: int, *, optional: bool = False) -> Rule:
+    """An integer >= ``minimum``; or None, where ``optional``."""
+    return Rule(
+        lambda value: (optional and value is None) or (is_int(value) and value >= minimum),
+        ("None or " if optional else "") + f"an integer >= {minimum}",
+    )
+
+
+def number(condition: Callable[[float], bool], text: str, *, schedule: bool = False, optional: bool = False) -> Rule:
+    """A finite int or float satisfying ``condition`` (``text`` in words); or a schedule, or None, where allowed."""
+
+    def accepts(value: Any) -> bool:
+        if (optional and value is None) or (schedule and is_schedule(value)):
+            return True
+        return is_finite_number(value) and condition(float(value))
+
+    return Rule(accepts, ("None or " if optional else "") + f"a finite number {text}" + (" or a schedule" if schedule else ""))
+
+
+def optional(kind: type | types.UnionType, text: str) -> Rule:
+    """None or an instance of ``kind`` (``text`` in words)."""
+    return Rule(lambda value: value is None or isinstance(value, kind), f"None or {text}")
+
+
+def names(*, optional: bool = False) -> Rule:
+    """A list or tuple of ``str`` (:func:`is_names`); or None, where ``optional``."""
+    return Rule(
+        lambda value: (optional and value is None) or is_names(value),
+        ("None or " if optional else "") + "a list or tuple of str (not one str)",
+    )
+
+
+def keywords(text: str, *, optional: bool = True) -> Rule:
+    """A dict with ``str`` keys (keyword arguments; ``text`` says whose); or None, where ``optional``."""
+    return Rule(
+        lambda value: (optional and value is None) or is_keywords(value),
+        ("None or " if optional else "") + f"a dict of {text} (str keys)",
+    )
+
+
+def choice(options: Sequence[str], *, optional: bool = False) -> Rule:
+    """One of the ``str`` ``options``; or None, where ``optional``."""
+    return Rule(
+        lambda value: (optional and value is None) or (isinstance(value, str) and value in options),
+        ("None or " if optional else "") + f"one of {list(options)}",
+    )
+
+
+def check_arguments(owner: str, rules: Mapping[str, Rule], arguments: Mapping[str, Any]) -> None:
+    """Raise ``ValueError`` naming the first of ``arguments`` that breaks its rule:
+    ``"<owner>: `<name>` must be <requirement>, got <value>"``."""
+    for name, value in arguments.items():
+        rule = rules[name]
+        if not rule.accepts(value):
+            raise ValueError(f"{owner}: `{name}` must be {rule.requirement}, got {value!r}")
