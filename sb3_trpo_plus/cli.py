@@ -183,16 +183,20 @@ def train(argv: Sequence[str]) -> None:
     """``trpo-plus train --env ID [--algo trpo_plus|trpo|ppo] [--vec-env dummy|subproc|batch] [--sim-threads N]
     [--workers inprocess|process|ray:N] [rl_zoo3 train flags]``.
 
-    ``--vec-env batch`` steps the training envs with the batched engine (``grasp_envs.make_batch_env``, physics on
-    ``--sim-threads`` threads): the same transitions as ``dummy``, faster. Ctrl-C stops at the next env step and saves
-    the run (model, replay memory, VecNormalize statistics), from which ``-i <run>/<ENV>.zip`` resumes.
+    ``--vec-env batch``, the default for the tasks of ``grasp_envs``, steps the training envs with the batched engine
+    (``grasp_envs.make_batch_env``, physics on ``--sim-threads`` threads): the same transitions as ``dummy``, faster.
+    Ctrl-C stops at the next env step and saves the run (model, replay memory, VecNormalize statistics), from which
+    ``-i <run>/<ENV>.zip`` resumes.
     ``--workers ray:8`` collects with 8 Ray workers (``sb3_trpo_plus.rollouts.RayRollouts``; the cluster at
     ``RAY_ADDRESS``, else Ray on this machine), each stepping ``n_envs / 8`` of the recipe's envs.
     """
     parser = argparse.ArgumentParser(prog="trpo-plus train", add_help=False)
     parser.add_argument("--algo", default="trpo_plus", choices=ALGO_CHOICES)
     parser.add_argument("--env", required=True)
-    parser.add_argument("--vec-env", default="dummy", choices=("dummy", "subproc", "batch"))
+    parser.add_argument(
+        "--vec-env", default=None, choices=("dummy", "subproc", "batch"),
+        help="default: batch for the tasks of grasp_envs, dummy for any other env",
+    )  # fmt: skip
     parser.add_argument("--sim-threads", type=int, default=1, help="threads of the batched engine's physics")
     parser.add_argument(
         "--workers", type=_workers_option, default=None, metavar="BACKEND:N",
@@ -209,7 +213,7 @@ def train(argv: Sequence[str]) -> None:
         parser.error(f"--sim-threads must be >= 0 (0: every CPU), got {known.sim_threads}")
     make: Callable[..., Any] | None = None
     if known.workers is not None:
-        if known.vec_env != "dummy":
+        if known.vec_env is not None:
             parser.error(f"--workers collects with its own workers' envs; --vec-env {known.vec_env} does not apply")
         if known.algo != "trpo_plus":
             parser.error(f"--workers collects whole segments for trpo_plus only, got --algo {known.algo}")
@@ -217,14 +221,19 @@ def train(argv: Sequence[str]) -> None:
 
         backend, count = known.workers
         make = functools.partial(workers_training_env, backend=backend, num_workers=count, n_threads=known.sim_threads)
-    elif known.vec_env == "batch":
-        if known.env not in grasp_envs.ENV_IDS:
-            parser.error(f"--vec-env batch runs the tasks of grasp_envs ({', '.join(grasp_envs.ENV_IDS)}), got {known.env}")
-        from sb3_trpo_plus.zoo import batch_training_env
+        known.vec_env = "dummy"
+    else:
+        if known.vec_env is None:  # the same transitions as dummy, faster from a few envs on
+            known.vec_env = "batch" if known.env in grasp_envs.ENV_IDS else "dummy"
+        if known.vec_env == "batch":
+            if known.env not in grasp_envs.ENV_IDS:
+                ids = ", ".join(grasp_envs.ENV_IDS)
+                parser.error(f"--vec-env batch runs the tasks of grasp_envs ({ids}), got {known.env}")
+            from sb3_trpo_plus.zoo import batch_training_env
 
-        make = functools.partial(batch_training_env, n_threads=known.sim_threads)
-    elif known.sim_threads != 1:
-        parser.error("--sim-threads sets the physics threads of --vec-env batch or --workers")
+            make = functools.partial(batch_training_env, n_threads=known.sim_threads)
+        elif known.sim_threads != 1:
+            parser.error("--sim-threads sets the physics threads of --vec-env batch or --workers")
     _name_tensorboard_runs()
     _save_cleanly_on_interrupt()
     _name_damaged_files_of_resumed_runs()

@@ -154,8 +154,8 @@ def test_train_command_saves_on_sigint_and_resumes(tmp_path: Path) -> None:
     child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path)
     try:
 
-        def episodes() -> int:
-            monitor = run / "0.monitor.csv"
+        def episodes() -> int:  # the batched engine's monitor file (the default VecEnv of grasp_envs' ids)
+            monitor = run / "batch.monitor.csv"
             return len(monitor.read_text().splitlines()) - 2 if monitor.exists() else 0
 
         wait_for(lambda: episodes() >= 5 or child.poll() is not None, 180, "five episodes")  # > 3 rollouts of 64

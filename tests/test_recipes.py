@@ -68,8 +68,9 @@ def test_evaluation_wrappers_leave_training_aids_out() -> None:
 
 
 def test_trpo_plus_train_wraps_training_envs_only(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """`trpo-plus train --env Grasper3D-v7` with evaluation: the recipe's scripted starts wrap each of the training
-    envs and none of the evaluation envs (rl-zoo3 alone would wrap both)."""
+    """`trpo-plus train --env Grasper3D-v7 --vec-env dummy` with evaluation: the recipe's scripted starts wrap each of
+    the training envs and none of the evaluation envs (rl-zoo3 alone would wrap both). The batched engine runs them
+    itself (tests/test_zoo.py trains the recipe both ways to the same parameters)."""
     from grasp_envs.wrappers import ScriptedStarts
 
     made: list[int] = []
@@ -81,7 +82,7 @@ def test_trpo_plus_train_wraps_training_envs_only(tmp_path: Path, monkeypatch: p
 
     monkeypatch.setattr(ScriptedStarts, "__init__", counting)
     monkeypatch.chdir(tmp_path)
-    tiny = ["-params", "n_envs:2", "n_steps:16", "batch_size:16", "--num-threads", "1"]
+    tiny = ["-params", "n_envs:2", "n_steps:16", "batch_size:16", "--num-threads", "1", "--vec-env", "dummy"]
     evaluation = ["--eval-freq", "16", "--eval-episodes", "1", "--n-eval-envs", "1"]
     cli.main(
         ["train", "--env", RECOMMENDED_GRASPER, "-n", "64", "--seed", "0", "-f", str(tmp_path / "logs"), *evaluation, *tiny]

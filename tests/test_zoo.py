@@ -301,8 +301,39 @@ def test_batched_engine_flags_are_checked(capsys) -> None:
         cli.main(["train", "--env", "Pendulum-v1", "--vec-env", "batch"])
     assert "--vec-env batch runs the tasks of grasp_envs" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        cli.main(["train", "--env", "Grasper3D-v7", "--sim-threads", "2"])
+        cli.main(["train", "--env", "Grasper3D-v7", "--vec-env", "dummy", "--sim-threads", "2"])
     assert "the physics threads of --vec-env batch or --workers" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.main(["train", "--env", "Pendulum-v1", "--sim-threads", "2"])
+    assert "the physics threads of --vec-env batch or --workers" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["--env", "Grasper3D-v7"], "batch"),
+        (["--env", "Reacher2D-v0", "--sim-threads", "2"], "batch"),
+        (["--env", "Grasper3D-v7", "--vec-env", "dummy"], "dummy"),
+        (["--env", "Grasper3D-v7", "--vec-env", "subproc"], "subproc"),
+        (["--env", "Pendulum-v1"], "dummy"),
+    ],
+)
+def test_the_tasks_of_grasp_envs_train_on_the_batched_engine_by_default(argv, expected, monkeypatch) -> None:
+    """What the training env is, seen from inside rl-zoo3's train(): the batched engine for grasp_envs' ids unless
+    --vec-env says otherwise, rl-zoo3's own VecEnv for any other id."""
+    import rl_zoo3.train
+    from rl_zoo3 import exp_manager
+
+    seen: dict[str, object] = {}
+
+    def fake_train() -> None:
+        seen["argv_vec_env"] = sys.argv[sys.argv.index("--vec-env") + 1]
+        seen["patched"] = hasattr(exp_manager.ExperimentManager.create_envs, "__wrapped__")  # functools.wraps
+
+    monkeypatch.setattr(rl_zoo3.train, "train", fake_train)
+    cli.main(["train", *argv])
+    assert seen["patched"] is (expected == "batch")
+    assert seen["argv_vec_env"] == ("dummy" if expected == "batch" else expected)
 
 
 def test_train_with_rollout_workers_in_processes_trains_as_in_process(tmp_path: Path, monkeypatch) -> None:
