@@ -8,6 +8,7 @@ of a task; ``grasp_envs.batch.BatchVecEnv`` its SB3 VecEnv face.
 
 from __future__ import annotations
 
+import os
 from os import path
 from typing import Any, ClassVar
 
@@ -111,10 +112,20 @@ def norm(vectors: Array) -> Array:
 
 
 def check_near_bonus(weight: float, scale: float) -> None:
-    if not scale > 0:
-        raise ValueError(f"near_scale must be positive, got {scale}")
-    if not weight >= 0:
-        raise ValueError(f"reward_near_weight must be non-negative, got {weight}")
+    check_amount("near_scale", scale, "positive number")
+    check_amount("reward_near_weight", weight)
+
+
+def check_amount(name: str, value: Any, kind: str = "non-negative number") -> None:
+    """Raise ``ValueError`` naming the option and the value unless it is a finite real number (a bool is not one) that
+    is > 0 (``kind="positive number"``) or >= 0 (``"non-negative number"``); ``None`` passes where ``kind`` ends in
+    ``" or None"``."""
+    if value is None and kind.endswith(" or None"):
+        return
+    number = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+    positive = kind.startswith("positive")
+    if not (number and np.isfinite(value) and (value > 0 or (value == 0 and not positive))):
+        raise ValueError(f"{name} must be a {kind}, got {value!r}")
 
 
 def check_frame_skip(frame_skip: Any) -> None:
@@ -141,6 +152,8 @@ class ArmTask:
     contact_pairs: ClassVar[tuple[tuple[str, str], ...]] = ()
 
     def __init__(self, xml_file: str, frame_skip: int, observation_dim: int):
+        if not isinstance(xml_file, str | os.PathLike):
+            raise ValueError(f"xml_file must be a path (str), got {xml_file!r}")
         check_frame_skip(frame_skip)
         self.xml_file = xml_file
         self.frame_skip = int(frame_skip)

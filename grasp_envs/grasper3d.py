@@ -10,7 +10,7 @@ from gymnasium import utils
 from gymnasium.spaces import Box
 from numpy.typing import NDArray
 
-from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, ArmTask, SimArrays, asset_path, norm
+from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, ArmTask, SimArrays, asset_path, check_amount, norm
 from grasp_envs.control import grip_down_commands, point_jacobians
 
 ARM_JOINTS = ("shoulder_y", "shoulder_z", "elbow_y", "elbow_z", "forearm_roll")
@@ -121,14 +121,22 @@ class Grasper3DTask(ArmTask):
         for name, flag in (("observe_claw_torque", observe_claw_torque), ("terminate_on_success", terminate_on_success)):
             if not (flag is None or isinstance(flag, bool)):
                 raise ValueError(f"{name} must be a bool or None, got {flag!r}")
-        _check_amount("max_grip_speed", max_grip_speed)
-        if claw_rate is not None:
-            _check_amount("claw_rate", claw_rate, "positive number or None")
+        check_amount("max_grip_speed", max_grip_speed, "positive number")
+        check_amount("claw_rate", claw_rate, "positive number or None")
         if claw_rate is not None and (control != "grip_velocity" or claw != "servo"):
             raise ValueError("claw_rate moves the servo claw's target: it needs control='grip_velocity' and claw='servo'")
-        _check_amount("squeeze_torque", squeeze_torque)
-        _check_amount("lift_height", lift_height)
-        _check_amount("reset_noise_scale", reset_noise_scale, "non-negative number")
+        check_amount("squeeze_torque", squeeze_torque, "positive number")
+        check_amount("lift_height", lift_height, "positive number")
+        check_amount("reset_noise_scale", reset_noise_scale)
+        weights = {
+            "reward_reach_weight": reward_reach_weight, "reward_grasp_weight": reward_grasp_weight,
+            "reward_lift_weight": reward_lift_weight, "reward_hold_weight": reward_hold_weight,
+            "reward_floor_weight": reward_floor_weight,
+        }  # fmt: skip
+        for name, weight in weights.items():
+            check_amount(name, weight)
+        check_amount("reward_squeeze_weight", reward_squeeze_weight, "non-negative number or None")
+        check_amount("reward_control_weight", reward_control_weight, "non-negative number or None")
         servo = claw == "servo"
         observe_torque = servo if observe_claw_torque is None else observe_claw_torque
         squeeze_weight = (2.0 if servo else 0.0) if reward_squeeze_weight is None else reward_squeeze_weight
@@ -743,14 +751,6 @@ def add_cube_rotation(spec: mujoco.MjSpec, cube_rotation: str = "yaw") -> None:
     spec.body("cube").add_joint(
         name=CUBE_ROTATION_JOINT, damping=CUBE_ROTATION_DAMPING, armature=0.0, **CUBE_ROTATIONS[cube_rotation]
     )
-
-
-def _check_amount(name: str, value: Any, kind: str = "positive number") -> None:
-    """Raise ``ValueError`` naming the option and the value unless it is a finite real number (a bool is not one) that
-    is > 0, or >= 0 when ``kind`` is ``"non-negative number"``."""
-    number = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
-    if not (number and np.isfinite(value) and (value > 0 or (value == 0 and kind == "non-negative number"))):
-        raise ValueError(f"{name} must be a {kind}, got {value!r}")
 
 
 def _check_choice(name: str, value: Any, choices: tuple[Any, ...]) -> None:

@@ -8,7 +8,7 @@ import numpy as np
 from gymnasium import utils
 from numpy.typing import NDArray
 
-from grasp_envs.base import ArmEnv, ArmTask, SimArrays, check_near_bonus, near_bonus, norm
+from grasp_envs.base import ArmEnv, ArmTask, SimArrays, check_amount, check_near_bonus, near_bonus, norm
 
 DEFAULT_CAMERA_CONFIG: dict[str, Any] = {"trackbodyid": 0, "distance": 0.9, "elevation": -90.0}
 
@@ -28,6 +28,10 @@ class Reacher2DTask(ArmTask):
         success_distance: float,
     ):
         check_near_bonus(reward_near_weight, near_scale)
+        for name, value in (("reward_dist_weight", reward_dist_weight), ("reward_control_weight", reward_control_weight)):
+            check_amount(name, value)
+        check_amount("reset_noise_scale", reset_noise_scale)
+        check_amount("success_distance", success_distance, "positive number")
         super().__init__(xml_file, frame_skip, observation_dim=10)
         self.reward_dist_weight = reward_dist_weight
         self.reward_control_weight = reward_control_weight

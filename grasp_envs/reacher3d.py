@@ -9,7 +9,16 @@ import numpy as np
 from gymnasium import utils
 from numpy.typing import NDArray
 
-from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, ArmTask, SimArrays, check_near_bonus, near_bonus, norm
+from grasp_envs.base import (
+    DEFAULT_CAMERA_CONFIG_3D,
+    ArmEnv,
+    ArmTask,
+    SimArrays,
+    check_amount,
+    check_near_bonus,
+    near_bonus,
+    norm,
+)
 
 ARM_JOINTS = ("shoulder_y", "shoulder_z", "elbow_y", "elbow_z")
 FLOOR_Z = -0.2
@@ -32,6 +41,10 @@ class Reacher3DTask(ArmTask):
         observation_dim: int = 18,
     ):
         check_near_bonus(reward_near_weight, near_scale)
+        for name, value in (("reward_dist_weight", reward_dist_weight), ("reward_control_weight", reward_control_weight)):
+            check_amount(name, value)
+        check_amount("reset_noise_scale", reset_noise_scale)
+        check_amount("success_distance", success_distance, "positive number")
         super().__init__(xml_file, frame_skip, observation_dim)
         self.reward_dist_weight = reward_dist_weight
         self.reward_control_weight = reward_control_weight

@@ -8,7 +8,7 @@ import numpy as np
 from gymnasium import utils
 from numpy.typing import NDArray
 
-from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, SimArrays, norm
+from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, SimArrays, check_amount, norm
 from grasp_envs.reacher3d import FLOOR_Z, TARGET_HALF_SIZE, Reacher3DTask
 
 WALL_CAMERA_CONFIG: dict[str, Any] = {**DEFAULT_CAMERA_CONFIG_3D, "azimuth": 90.0, "elevation": -60.0}
@@ -40,6 +40,8 @@ class WallReacher3DTask(Reacher3DTask):
             xml_file, frame_skip, reward_dist_weight, reward_control_weight, 0.0, 0.05, reset_noise_scale,
             success_distance, observation_dim=21,
         )  # fmt: skip
+        check_amount("reward_wall_weight", reward_wall_weight)
+        check_amount("reward_proximity_weight", reward_proximity_weight)
         self.reward_wall_weight = reward_wall_weight
         self.reward_proximity_weight = reward_proximity_weight
 

@@ -117,7 +117,7 @@ def parse_dict_text(text: str, where: str) -> dict[str, Any]:
     from sb3_trpo_plus.zoo import HyperparameterError, dict_text
 
     try:
-        return dict_text(text, where, "the text")
+        return dict_text(text, where, "it")
     except HyperparameterError as error:
         reason = str(error).removeprefix(f"{where}: ")
         raise RunFileError(f"{where}: refused {text!r}: {reason}, which is read, not run") from None

@@ -389,10 +389,13 @@ def _zoo_enjoy(argv: Sequence[str]) -> dict[str, Any]:
 def _validated_run_folders(env_id: str) -> Iterator[None]:
     """While open, each run folder rl-zoo3's enjoy picks (``get_model_path``: a local run, or one it has just
     downloaded from the Hugging Face hub) is checked by :func:`sb3_trpo_plus.agents.validate_run_files` before
-    rl-zoo3 reads its ``config.yml`` / ``args.yml`` with ``yaml.UnsafeLoader`` and evaluates ``normalize``."""
+    rl-zoo3 reads its ``config.yml`` / ``args.yml`` with ``yaml.UnsafeLoader`` and evaluates ``normalize``; a damaged
+    ``vecnormalize.pkl`` raises :class:`~sb3_trpo_plus.agents.RunFileError` naming it."""
     import rl_zoo3.enjoy as enjoy_module
+    import rl_zoo3.utils as zoo_utils
+    from stable_baselines3.common.vec_env import VecNormalize
 
-    from sb3_trpo_plus.agents import validate_run_files
+    from sb3_trpo_plus.agents import load_trusted_file, validate_run_files
 
     original = enjoy_module.get_model_path
 
@@ -402,11 +405,20 @@ def _validated_run_folders(env_id: str) -> Iterator[None]:
         validate_run_files(log_path, env_id)
         return name_prefix, model_path, log_path
 
+    class NamingVecNormalize(VecNormalize):
+        """What rl-zoo3's ``create_test_env`` calls to unpickle the run's statistics."""
+
+        @staticmethod
+        def load(load_path: str, venv: Any) -> VecNormalize:  # type: ignore[override]
+            return load_trusted_file(lambda: VecNormalize.load(load_path, venv), Path(load_path))  # type: ignore[no-any-return]
+
     enjoy_module.get_model_path = get_model_path
+    zoo_utils.VecNormalize = NamingVecNormalize  # type: ignore[misc]
     try:
         yield
     finally:
         enjoy_module.get_model_path = original
+        zoo_utils.VecNormalize = VecNormalize  # type: ignore[misc]
 
 
 def _load_trained(

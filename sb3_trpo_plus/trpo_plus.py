@@ -1025,12 +1025,11 @@ class TRPOPlus(TRPO):
         Unpickles parts of the zip: load only files you trust (``sb3_trpo_plus.agents`` reads a policy as data).
         A truncated or corrupted file raises ``ValueError`` naming it and what failed.
         """
-        import pickle
-        import zipfile
-
         try:
             model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
-        except (ValueError, EOFError, RuntimeError, KeyError, pickle.UnpicklingError, zipfile.BadZipFile) as error:
+        except OSError:  # a missing or unreadable file is no damaged one
+            raise
+        except Exception as error:  # whatever a damaged zip's unpickling or decoding raises
             where = path if isinstance(path, str | pathlib.Path) else "the model stream"
             cause = f"{type(error).__name__}: {error}"
             raise ValueError(f"{where}: cannot load the model (truncated or corrupted?): {cause}") from error

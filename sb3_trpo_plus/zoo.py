@@ -96,11 +96,11 @@ def dict_text(value: str, where: str, key: str, activations: bool = False) -> di
     except SyntaxError as error:
         raise HyperparameterError(f"{where}: {key} is not valid: {error}") from None
     if not (isinstance(tree, ast.Call) and isinstance(tree.func, ast.Name) and tree.func.id == "dict" and not tree.args):
-        raise HyperparameterError(f"{where}: {key} text must be of the form dict(key=value, ...)")
+        raise HyperparameterError(f"{where}: {key} must be text of the form dict(key=value, ...)")
     mapping: dict[str, Any] = {}
     for keyword in tree.keywords:
         if keyword.arg is None:
-            raise HyperparameterError(f"{where}: {key} text must name each key (dict(key=value, ...)), got **")
+            raise HyperparameterError(f"{where}: {key} must name each key (dict(key=value, ...)), got **")
         node = keyword.value
         if activations and isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "nn":
             mapping[str(keyword.arg)] = node.attr

@@ -196,3 +196,37 @@ def test_scripted_starts_records_its_arguments_in_the_spec() -> None:
     assert isinstance(remade, ScriptedStarts)
     assert (remade.probability, remade.steps, remade.hold_height) == (0.5, (50, 100), 0.07)
     np.testing.assert_array_equal(remade.reset(seed=1)[0], env.reset(seed=1)[0])
+
+
+ENV_CLASSES = (grasp_envs.Reacher2DEnv, grasp_envs.Reacher3DEnv, grasp_envs.WallReacher3DEnv, grasp_envs.Grasper3DEnv)
+# options every env class takes from Gymnasium's MujocoEnv (checked there or by MuJoCo's renderer)
+RENDER_OPTIONS = {"render_mode", "width", "height", "camera_id", "camera_name", "default_camera_config"}
+
+
+def _wrong_values(name: str, default: Any) -> list[Any]:
+    """Values of the wrong type for an option with this default."""
+    if name == "xml_file":
+        return [3, None if default is not None else 3.5]
+    if isinstance(default, bool) or name in ("observe_claw_torque", "terminate_on_success"):
+        return ["yes", 1]
+    if isinstance(default, int):  # frame_skip
+        return [True, 2.0, "2"]
+    if isinstance(default, float) or default is None:
+        return ["1", True, float("nan"), [1.0]]
+    return [3, True]  # a choice among strings
+
+
+@pytest.mark.parametrize("env_class", ENV_CLASSES, ids=lambda c: c.__name__)
+def test_every_option_of_every_env_refuses_a_wrong_type(env_class: type) -> None:
+    """Table-driven over the constructor's signature: each task option, given a value of the wrong type, raises
+    ValueError naming the option (and nothing is coerced)."""
+    options = {
+        name: p.default
+        for name, p in inspect.signature(env_class).parameters.items()
+        if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and name not in RENDER_OPTIONS
+    }
+    assert len(options) >= 8, options
+    for name, default in options.items():
+        for value in _wrong_values(name, default):
+            with pytest.raises(ValueError, match=re.escape(name)):
+                env_class(**{name: value})

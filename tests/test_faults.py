@@ -422,3 +422,24 @@ def test_compat_fixture_is_small() -> None:
         assert sum(p.stat().st_size for p in folder.iterdir()) < 200_000
         with zipfile.ZipFile(folder / "model.zip") as archive:
             assert {"data", "policy.pth", "policy.optimizer.pth", "pytorch_variables.pth"} <= set(archive.namelist())
+
+
+@pytest.mark.parametrize("how", ["truncated", "corrupted"])
+def test_damaged_statistics_of_a_trusted_enjoy_are_named(
+    run_folder: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, how: str
+) -> None:
+    """``trpo-plus enjoy --trust-pickle`` hands the run to rl-zoo3, which unpickles ``vecnormalize.pkl`` itself."""
+    from sb3_trpo_plus import cli
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "argv", list(sys.argv))
+    run = tmp_path / "logs" / "trpo_plus" / "Pendulum-v1_1"
+    shutil.copytree(run_folder, run)
+    file = "Pendulum-v1/vecnormalize.pkl"
+    damaged = damaged_copy(run_folder / file, run / file, how)
+    command = ["enjoy", "--env", "Pendulum-v1", "-f", str(tmp_path / "logs"), "--exp-id", "1", "--no-render", "-n", "5"]
+    with pytest.raises(RunFileError, match=rf"{re.escape(str(damaged))}: "):
+        cli.main([*command, "--trust-pickle"])
+    import rl_zoo3.utils
+
+    assert rl_zoo3.utils.VecNormalize is VecNormalize  # rl-zoo3 is left as it was

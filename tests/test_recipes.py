@@ -94,9 +94,9 @@ def test_trpo_plus_train_wraps_training_envs_only(tmp_path: Path, monkeypatch: p
 @pytest.mark.parametrize(
     ("line", "message"),
     [
-        ("normalize: \"__import__('os').system('touch {mark}')\"", "normalize text must be of the form"),
+        ("normalize: \"__import__('os').system('touch {mark}')\"", "normalize must be text of the form"),
         ("normalize: \"dict(norm_obs=__import__('os').system('touch {mark}'))\"", "must be a literal"),
-        ("monitor_kwargs: \"__import__('os').system('touch {mark}')\"", "monitor_kwargs text must be"),
+        ("monitor_kwargs: \"__import__('os').system('touch {mark}')\"", "monitor_kwargs must be text"),
         ("callback: os.system", "is not a class of"),
         ("callback: stable_baselines3.common.vec_env.VecNormalize", "not a BaseCallback subclass"),
     ],
