@@ -41,6 +41,7 @@ from benchmarks.study import (
     VARIANTS,
     hyperparameters,
 )
+from grasp_envs import RECOMMENDED_GRASPER
 
 BEGIN, END = "<!-- convergence-report:begin -->", "<!-- convergence-report:end -->"
 AGENT_EPISODES = 20
@@ -391,10 +392,24 @@ def agents_section(manifest_path: Path) -> list[str]:
         video = f"[mp4]({entry['video']})" if "video" in entry else "—"
         kwargs = ", ".join(f"`{key}={value!r}`" for key, value in entry.get("env_kwargs", {}).items()) or "—"
         again = (f" {entry[more]:.2f} |" if more in entry else " — |") if counts else ""
+        label = LABELS[entry["variant"]]
+        if env_id == RECOMMENDED_GRASPER and not entry.get("env_kwargs"):
+            label = f"the recipe of `zoo_hyperparams/trpo_plus.yml` ({label})"
         lines.append(
-            f"| `{env_id}` | {kwargs} | {LABELS[entry['variant']]} | {entry['seed']} | {entry['timesteps']:,} | "
+            f"| `{env_id}` | {kwargs} | {label} | {entry['seed']} | {entry['timesteps']:,} | "
             f"{entry['success_rate']:.2f} | {entry['mean_reward']:.2f} |{again} {video} |"
         )
+    for env_id, entry in sorted(manifest.items()):
+        if "held_out" in entry:  # episodes that played no part in picking the agent
+            held_out = entry["held_out"]
+            lifted = round(held_out["success_rate"] * held_out["episodes"])
+            lines += [
+                "",
+                f"`{env_id}`'s agent is seed {entry['seed']} of its variant's runs, picked by the {REEVALUATION_EPISODES}"
+                f"-episode evaluation above. On {held_out['episodes']} further episodes that played no part in picking"
+                f" it (reset seeds from {held_out['eval_seed']:,}) it succeeds {lifted} times"
+                f" ({held_out['success_rate']:.3f}).",
+            ]
     for env_id, entry in sorted(manifest.items()):
         if "video" in entry:
             kwargs = ", ".join(f"`{key}={value!r}`" for key, value in entry.get("env_kwargs", {}).items())

@@ -732,3 +732,10 @@ def test_target_table_counts_a_budgets_last_evaluation_past_it_as_within() -> No
     ]
     assert report._evaluations_within(_rows((1, 0.0), (2, 0.0), (3, 0.0)), 2) == 2  # one at the mark
     assert report._evaluations_within(_rows((1, 0.0), (3, 0.0), (4, 0.0)), 2) == 2  # the first past it
+
+
+def test_the_results_page_shows_the_shipped_agents_as_the_report_writes_them() -> None:
+    """docs/results.md's agents section is ``report.agents_section`` of trained_agents/agents.json, word for word."""
+    text = (report.ROOT / "docs" / "results.md").read_text()
+    shown = text[text.index("### Trained agents") : text.index(report.END)].rstrip("\n").split("\n")
+    assert shown == report.agents_section(report.ROOT / "trained_agents" / "agents.json")[:-1]
