@@ -1042,8 +1042,8 @@ class RayRollouts(RolloutWorkers):
     """One Ray actor per rollout worker, spread over the cluster's nodes (``SPREAD`` scheduling).
 
     Connects to the running Ray cluster (``address``, else the ``RAY_ADDRESS`` environment variable) or, when there
-    is none, starts a local Ray instance; a Ray session that is already initialised is used as it is. Ray is imported
-    and started once every argument is checked.
+    is none, starts a local Ray instance; Ray already initialised in the process (``ray.init(...)``) is used as it
+    is. Ray is imported and started once every argument is checked.
 
     :param cpus_per_worker: CPUs each actor reserves (Ray places a worker on a node with that many free)
     :param max_restarts: restarts of each worker after its process or node died (default 3)
