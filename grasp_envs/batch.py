@@ -219,10 +219,15 @@ class BatchVecEnv(VecEnv):
             else:
                 self._snapshot[name][ids] = array[ids]
         if self.task.contact_pairs:  # the contact list has no batched binding: read each simulation's MjData
-            rows = np.arange(self.num_envs) if ids is None else np.asarray(ids)
+            xpos, xmat = self._snapshot["geom_xpos"], self._snapshot["geom_xmat"]
+            if ids is None:  # every simulation: the snapshot as it is, no row copies
+                rows = np.arange(self.num_envs)
+            else:
+                rows = np.asarray(ids)
+                xpos, xmat = xpos[rows], xmat[rows]
             self._contacts[rows] = 0.0
             # only where a counted pair may touch: the others' lists hold no counted contact
-            rows = rows[self._screen.may_touch(self._snapshot["geom_xpos"][rows], self._snapshot["geom_xmat"][rows])]
+            rows = rows[self._screen.may_touch(xpos, xmat)]
             if len(rows):
                 data, geoms = self._contact_data, []
                 for i in rows:
