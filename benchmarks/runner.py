@@ -26,7 +26,7 @@ from benchmarks.builders import (
 )
 from benchmarks.protocol import EVAL_EPISODES, EVAL_SEED, evaluate
 from benchmarks.runs import DIAGNOSTICS, append_row, atomic_replace, job_folder, keep_checkpoint, read_progress
-from benchmarks.study import BUDGETS, VARIANTS
+from benchmarks.study import BUDGETS, TARGETS, VARIANTS
 
 CHUNKS = 25
 # the settings a variant may change on a checkpoint it resumes (branches from): the trust region, the batch, the memory
@@ -61,7 +61,8 @@ def run_job(
         rows, done = [], 0
     config = model_settings(env_id, variant)
     algo_class = algorithm_class(variant)
-    monitor = {"info_keywords": ("is_success",)}
+    # Monitor records the success flag of the tasks that have one (Gymnasium's locomotion tasks have none)
+    monitor = {"info_keywords": ("is_success",)} if env_id in TARGETS else None
     venv = training_envs(env_id, variant, seed + 100_000 * len(rows), monitor_kwargs=monitor, vec_env=vec_env)
     model_path, stats_path = folder / "model.zip", folder / "vecnormalize.pkl"
     if rows:

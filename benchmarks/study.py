@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 STUDY_FILE = Path(__file__).resolve().with_name("study.yml")
 ALGOS = ("trpo_plus", "trpo", "ppo")
 VARIANT_KEYS = {"label", "algo", "hyperparameters", "env_kwargs", "train_wrappers", "algo_class", "zero_cg_start"}
-ENV_KEYS = {"budget", "target", "target_within", "target_held"}
+ENV_KEYS = {"budget", "target", "target_within", "target_held", "return_target"}
 
 
 @dataclass(frozen=True)
@@ -43,12 +43,15 @@ SCHEDULES: dict[str, type] = {"hold_then_shrink": HoldThenShrink}  # a hyperpara
 @dataclass(frozen=True)
 class EnvSettings:
     """An env of the study: its budget (env steps), and the success rate to reach within ``target_within`` steps
-    (held at every evaluation after that, with ``target_held``)."""
+    (held at every evaluation after that, with ``target_held``). A task without a success flag (Gymnasium's
+    locomotion) has no ``target`` and a ``return_target``: the evaluation return whose first crossing counts the
+    samples to threshold."""
 
     budget: int
-    target: float
+    target: float | None
     target_within: int
     target_held: bool = False
+    return_target: float | None = None
 
 
 @dataclass(frozen=True)
@@ -109,11 +112,14 @@ def _env_settings(env_id: str, settings: Mapping[str, Any]) -> EnvSettings:
     if unknown := set(settings) - ENV_KEYS:
         raise StudyError(f"env {env_id}: unknown keys {sorted(unknown)} (known: {sorted(ENV_KEYS)})")
     budget = int(settings["budget"])
+    if ("target" in settings) == ("return_target" in settings):
+        raise StudyError(f"env {env_id}: give either a success target or a return_target, not both or neither")
     return EnvSettings(
         budget=budget,
-        target=float(settings["target"]),
+        target=float(settings["target"]) if "target" in settings else None,
         target_within=int(settings.get("target_within", budget)),
         target_held=bool(settings.get("target_held", False)),
+        return_target=float(settings["return_target"]) if "return_target" in settings else None,
     )
 
 
@@ -180,7 +186,8 @@ ENVS = STUDY.envs
 VARIANTS = STUDY.variants
 STUDY_VARIANTS = STUDY.study_variants
 BUDGETS = {env_id: env.budget for env_id, env in ENVS.items()}
-TARGETS = {env_id: env.target for env_id, env in ENVS.items()}
+TARGETS = {env_id: env.target for env_id, env in ENVS.items() if env.target is not None}
+RETURN_TARGETS = {env_id: env.return_target for env_id, env in ENVS.items() if env.return_target is not None}
 TARGET_WITHIN = {env_id: env.target_within for env_id, env in ENVS.items()}
 TARGET_HELD = {env_id for env_id, env in ENVS.items() if env.target_held}
 LABELS = {name: variant.label for name, variant in VARIANTS.items()}

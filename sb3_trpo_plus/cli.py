@@ -188,7 +188,9 @@ def train(argv: Sequence[str]) -> None:
     Ctrl-C stops at the next env step and saves the run (model, replay memory, VecNormalize statistics), from which
     ``-i <run>/<ENV>.zip`` resumes.
     ``--workers ray:8`` collects with 8 Ray workers (``sb3_trpo_plus.rollouts.RayRollouts``; the cluster at
-    ``RAY_ADDRESS``, else Ray on this machine), each stepping ``n_envs / 8`` of the recipe's envs.
+    ``RAY_ADDRESS``, else Ray on this machine), each stepping ``n_envs / 8`` of the recipe's envs; a cluster that
+    refuses this process' token stops the command at once with one line naming ``RAY_AUTH_MODE=token`` and the
+    token's file.
     """
     parser = argparse.ArgumentParser(prog="trpo-plus train", add_help=False)
     parser.add_argument("--algo", default="trpo_plus", choices=ALGO_CHOICES)
@@ -220,6 +222,13 @@ def train(argv: Sequence[str]) -> None:
         from sb3_trpo_plus.zoo import workers_training_env
 
         backend, count = known.workers
+        if backend == "ray":
+            from sb3_trpo_plus.ray_cluster import RayAuthenticationError, check_cluster_token
+
+            try:
+                check_cluster_token()  # before rl-zoo3 builds anything: one line, not Ray's 20 s of retries
+            except RayAuthenticationError as error:
+                raise SystemExit(f"trpo-plus train --workers ray:{count}: {error}") from None
         make = functools.partial(workers_training_env, backend=backend, num_workers=count, n_threads=known.sim_threads)
         known.vec_env = "dummy"
     else:

@@ -56,6 +56,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 from sb3_trpo_plus.arguments import Rule, check_arguments, choice, integer, keywords, names, number, optional
+from sb3_trpo_plus.ray_cluster import check_cluster_token, use_loopback_for_local_ray
 from sb3_trpo_plus.vec_env import RolloutWorkerError, _death_cause
 
 __all__ = [
@@ -1042,8 +1043,11 @@ class RayRollouts(RolloutWorkers):
     """One Ray actor per rollout worker, spread over the cluster's nodes (``SPREAD`` scheduling).
 
     Connects to the running Ray cluster (``address``, else the ``RAY_ADDRESS`` environment variable) or, when there
-    is none, starts a local Ray instance; Ray already initialised in the process (``ray.init(...)``) is used as it
-    is. Ray is imported and started once every argument is checked.
+    is none, starts a local Ray instance that listens on 127.0.0.1 only (unless ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER``
+    is set); Ray already initialised in the process (``ray.init(...)``) is used as it is. Ray is imported and started
+    once every argument is checked. A cluster that requires token authentication (``RAY_AUTH_MODE=token`` on its
+    nodes) and refuses this process' token raises :class:`~sb3_trpo_plus.ray_cluster.RayAuthenticationError` at once,
+    naming what to set (docs: "Securing the cluster").
 
     :param cpus_per_worker: CPUs each actor reserves (Ray places a worker on a node with that many free)
     :param max_restarts: restarts of each worker after its process or node died (default 3)
@@ -1077,6 +1081,10 @@ class RayRollouts(RolloutWorkers):
         except ImportError as error:  # pragma: no cover - the suite runs with the extra installed
             raise ImportError("RayRollouts needs Ray: pip install 'sb3-trpo-plus[ray]'") from error
         if not ray.is_initialized():
+            if self._address is None and not os.environ.get("RAY_ADDRESS"):
+                use_loopback_for_local_ray()  # a Ray of this process only: not reachable from the network
+            else:
+                check_cluster_token(self._address)  # one line at once, not Ray's 20 s of retries
             ray.init(address=self._address, include_dashboard=False, log_to_driver=False)
         return _RayBackend(self._cpus_per_worker, self._placement_timeout)
 

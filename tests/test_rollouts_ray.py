@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 import torch as th
@@ -24,21 +25,43 @@ pytestmark = pytest.mark.xdist_group("ray")  # one Ray instance at a time on thi
 RAY_DEATH = r"(RayActorError|ActorDiedError): .+"  # how Ray reports an actor whose process died
 
 
+HOME_TOKEN = Path.home() / ".ray" / "auth_token"
+
+
+def _home_token_state() -> tuple[bool, float | None]:
+    return HOME_TOKEN.exists(), HOME_TOKEN.stat().st_mtime if HOME_TOKEN.exists() else None
+
+
 @pytest.fixture(scope="module", autouse=True)
 def local_ray():
     # Ray's processes inherit this environment: its workers import crashing_env from tests/
     tests = os.path.dirname(os.path.abspath(__file__))
     saved = os.environ.get("PYTHONPATH")
     os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [tests, saved]))
+    home_token = _home_token_state()
     try:
         ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-        yield
+        yield home_token
     finally:
         ray.shutdown()
         if saved is None:
             del os.environ["PYTHONPATH"]
         else:
             os.environ["PYTHONPATH"] = saved
+
+
+def assert_loopback_only() -> None:
+    """Every node of the connected Ray, and its GCS, listen on 127.0.0.1."""
+    assert ray.get_runtime_context().gcs_address.rpartition(":")[0] == "127.0.0.1"
+    nodes = [node for node in ray.nodes() if node["Alive"]]
+    assert nodes and all(node["NodeManagerAddress"] == "127.0.0.1" for node in nodes), nodes
+
+
+def test_the_suites_local_ray_listens_on_loopback_only_with_a_token_outside_the_home_directory(local_ray) -> None:
+    assert_loopback_only()
+    token = Path(os.environ["RAY_AUTH_TOKEN_PATH"])
+    assert token.is_file() and Path.home() / ".ray" not in token.parents
+    assert _home_token_state() == local_ray, "starting Ray wrote ~/.ray/auth_token"
 
 
 @pytest.mark.parametrize("num_workers", [1, 2])

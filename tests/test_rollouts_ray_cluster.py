@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 from test_rollouts import SMALL
+from test_rollouts_ray import assert_loopback_only
 
 from sb3_trpo_plus import TRPOPlus
 from sb3_trpo_plus.rollouts import RayRollouts
@@ -26,6 +27,7 @@ def test_workers_spread_over_two_nodes_and_training_survives_losing_one() -> Non
     ray.init(address=cluster.address, log_to_driver=False)
     pool = None
     try:
+        assert_loopback_only()
         pool = RayRollouts("Reacher2D-v1", num_workers=2, envs_per_worker=2, seed=0, max_restarts=1, placement_timeout=60)
         nodes = {worker["node"] for worker in pool.workers}
         assert len(nodes) == 2, "SPREAD scheduling puts one worker on each node"

@@ -55,6 +55,7 @@ def test_all_envs_have_entries_in_every_file() -> None:
         "Reacher-v5",
         "Pendulum-v1",
         "Hopper-v5",
+        "HalfCheetah-v5",
     }
     for algo, name in ALGO_FILES.items():
         assert set(load_hyperparameters(ZOO_DIR / name, algo)) == expected, name
