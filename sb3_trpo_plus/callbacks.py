@@ -109,7 +109,8 @@ class StopTrainingOnInterrupt(BaseCallback):
     running step or update completes, then ``learn`` returns as after its last step (the partial rollout is
     dropped), so the model is in the state of its last complete update and can be saved. A second Ctrl-C
     interrupts at once (the handler in place before training is restored after the first). Only in the main
-    thread, where Python delivers signals.
+    thread, where Python delivers signals, and only where the process handles SIGINT: a process that ignores it
+    (started with ``nohup`` or as a background job ``&``) keeps ignoring it.
     """
 
     def __init__(self, verbose: int = 0):
@@ -120,7 +121,8 @@ class StopTrainingOnInterrupt(BaseCallback):
 
     def _on_training_start(self) -> None:
         self.interrupted = False
-        if threading.current_thread() is threading.main_thread():
+        ignored = signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        if threading.current_thread() is threading.main_thread() and not ignored:
             self._previous_handler = signal.signal(signal.SIGINT, self._on_sigint)
             self._installed = True
 

@@ -21,6 +21,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
+import sigint
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
@@ -95,7 +96,9 @@ CHILD = textwrap.dedent(
 def test_sigint_during_learn_saves_a_checkpoint_that_resumes(tmp_path: Path) -> None:
     script = tmp_path / "child.py"
     script.write_text(CHILD)
-    child = subprocess.Popen([sys.executable, str(script), str(tmp_path)], stderr=subprocess.PIPE, text=True)
+    child = subprocess.Popen(
+        [sys.executable, str(script), str(tmp_path)], stderr=subprocess.PIPE, text=True, preexec_fn=sigint.handled_in_child
+    )
     try:
         wait_for(lambda: (tmp_path / "ready").exists() or child.poll() is not None, 120, "three updates")
         assert child.poll() is None, child.stderr.read() if child.stderr else ""
@@ -128,16 +131,62 @@ def test_sigint_during_an_update_lets_it_finish(tmp_path: Path, monkeypatch: pyt
         train(self)
 
     monkeypatch.setattr(TRPOPlus, "train", train_interrupted_at_second_update)
-    with pytest.raises(KeyboardInterrupt):
-        model.learn(10_000, callback=SaveOnInterrupt(tmp_path))
+    with sigint.handled_here() as handler:
+        with pytest.raises(KeyboardInterrupt):
+            model.learn(10_000, callback=SaveOnInterrupt(tmp_path))
+        assert signal.getsignal(signal.SIGINT) is handler  # the handler in place before learn is back
     assert model._n_updates == 2  # the interrupted update completed; no third one started
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     saved = TRPOPlus.load(tmp_path / "interrupted.zip", device="cpu")
     for name, value in parameters(model).items():
         np.testing.assert_array_equal(saved.policy.state_dict()[name].numpy(), value, err_msg=name)
     assert len(saved.rollout_memory) == 2
     assert load_normalization(tmp_path / "interrupted_vecnormalize.pkl").obs_mean.shape == (3,)  # type: ignore[union-attr]
     env.close()
+
+
+def test_an_ignored_sigint_stays_ignored(tmp_path: Path) -> None:
+    """A process started with nohup or as a background job ignores SIGINT: training goes on to its end."""
+    env = VecNormalize(make_vec_env("Pendulum-v1", n_envs=1, seed=0))
+    model = tiny_model(env)
+
+    class SigintAtSecondRollout(BaseCallback):
+        def _on_rollout_start(self) -> None:
+            if self.model._n_updates == 1:
+                os.kill(os.getpid(), signal.SIGINT)
+
+        def _on_step(self) -> bool:
+            return True
+
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        callback = SaveOnInterrupt(tmp_path)
+        model.learn(3 * 64, callback=[callback, SigintAtSecondRollout()])
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, before)
+    assert model._n_updates == 3 and not callback.interrupted
+    assert not (tmp_path / "interrupted.zip").exists()
+    env.close()
+
+
+SIGNAL_TESTS = [
+    "tests/test_faults.py::test_sigint_during_learn_saves_a_checkpoint_that_resumes",
+    "tests/test_faults.py::test_sigint_during_an_update_lets_it_finish",
+    "tests/test_faults.py::test_an_ignored_sigint_stays_ignored",
+    "tests/test_faults.py::test_train_command_saves_on_sigint_and_resumes",
+    "tests/test_rollouts.py::test_ctrl_c_while_workers_collect_lets_the_segment_finish_and_saves_a_checkpoint",
+    "tests/test_vec_env.py::test_workers_ignore_sigint_and_a_dead_one_is_named",
+]
+
+
+@pytest.mark.slow
+def test_the_signal_tests_pass_in_a_background_job() -> None:
+    """``make test &`` starts the suite with SIGINT ignored; every test that sends SIGINT passes there too."""
+    root = Path(__file__).resolve().parents[1]
+    command = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "0", *SIGNAL_TESTS]
+    result = subprocess.run(command, cwd=root, capture_output=True, text=True, timeout=900, preexec_fn=sigint.ignored_in_child)
+    assert result.returncode == 0, result.stdout[-4000:]
+    assert f"{len(SIGNAL_TESTS)} passed" in result.stdout
 
 
 @pytest.mark.slow
@@ -151,7 +200,10 @@ def test_train_command_saves_on_sigint_and_resumes(tmp_path: Path) -> None:
     command = [sys.executable, "-m", "sb3_trpo_plus", "train", "--env", "Reacher2D-v0", "-conf", str(conf)]
     command += ["-f", str(logs), "--seed", "0", "--eval-freq", "-1", "--num-threads", "1", "--device", "cpu"]
     run = logs / "trpo_plus" / "Reacher2D-v0_1"
-    child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path)
+    child = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path,
+        preexec_fn=sigint.handled_in_child,
+    )  # fmt: skip
     try:
 
         def episodes() -> int:  # the batched engine's monitor file (the default VecEnv of grasp_envs' ids)

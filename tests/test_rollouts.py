@@ -8,6 +8,7 @@ import threading
 
 import numpy as np
 import pytest
+import sigint
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
@@ -400,7 +401,7 @@ def test_ctrl_c_while_workers_collect_lets_the_segment_finish_and_saves_a_checkp
             return collect(*args, **kwargs)
 
         pool.collect_segments = interrupted  # type: ignore[method-assign]
-        with pytest.raises(KeyboardInterrupt):
+        with sigint.handled_here(), pytest.raises(KeyboardInterrupt):
             model.learn(10_000, callback=SaveOnInterrupt(tmp_path))
         assert model._n_updates == 1 and all(worker["pid"] for worker in pool.workers)
         pool.collect_segments = collect  # type: ignore[method-assign]
