@@ -269,6 +269,45 @@ def test_statistics_equal_vec_normalize_load(run: Path) -> None:
     assert (stats.norm_obs, stats.norm_reward, stats.gamma) == (trusted.norm_obs, trusted.norm_reward, trusted.gamma)
 
 
+@pytest.mark.parametrize("norm_reward", [True, False])
+def test_statistics_normalise_as_vec_normalize(tmp_path: Path, norm_reward: bool) -> None:
+    """The loaded statistics' normalize/unnormalize of observations and rewards equal the unpickled VecNormalize's."""
+    env = VecNormalize(make_vec_env("Pendulum-v1", n_envs=2, seed=0), norm_reward=norm_reward, clip_obs=1.5)
+    env.reset()
+    for _ in range(50):
+        env.step(np.random.default_rng(0).uniform(-2, 2, (2, 1)).astype(np.float32))
+    env.save(str(tmp_path / "vecnormalize.pkl"))
+    trusted = VecNormalize.load(str(tmp_path / "vecnormalize.pkl"), make_vec_env("Pendulum-v1", n_envs=1))
+    stats = load_normalization(tmp_path / "vecnormalize.pkl")
+    rng = np.random.default_rng(1)
+    for obs in (rng.normal(0, 3, 3), rng.normal(0, 3, (5, 3))):  # one observation of gym.make, and a batch
+        normalized = stats.normalize_obs(obs)
+        np.testing.assert_array_equal(normalized, trusted.normalize_obs(obs))
+        assert normalized.dtype == np.float32 and np.abs(normalized).max() <= 1.5  # type: ignore[union-attr]
+        np.testing.assert_array_equal(stats.unnormalize_obs(obs), trusted.unnormalize_obs(obs))
+    rewards = rng.normal(0, 5, 4)
+    np.testing.assert_array_equal(stats.normalize_reward(rewards), trusted.normalize_reward(rewards))
+    np.testing.assert_array_equal(stats.unnormalize_reward(rewards), trusted.unnormalize_reward(rewards))
+    with pytest.raises(ValueError, match=r"shape \(4,\) does not end in the statistics' \(3,\)"):
+        stats.normalize_obs(np.zeros(4))
+    env.close()
+
+
+def test_a_loaded_agent_acts_on_a_plain_gymnasium_env() -> None:
+    """No VecEnv: the statistics normalise gym.make's observation, as the run's test VecEnv does."""
+    run = TRAINED / "Reacher2D-v1_1"
+    policy, statistics, _ = load_agent(run)
+    _, vec_env = load_eval_agent(run, seed=3)
+    assert statistics is not None
+    env = gym.make("Reacher2D-v1")
+    obs, _ = env.reset(seed=3)
+    np.testing.assert_allclose(statistics.normalize_obs(obs), vec_env.reset()[0], rtol=0, atol=0)
+    action, _ = policy.predict(statistics.normalize_obs(obs), deterministic=True)
+    assert env.action_space.contains(action)
+    env.close()
+    vec_env.close()
+
+
 # ---------------------------------------------------------------------------------------------- same agent either way
 @pytest.mark.parametrize("env_id", ["Reacher2D-v1", "Grasper3D-v6"])
 def test_weights_only_agent_acts_as_the_full_load(env_id: str) -> None:
