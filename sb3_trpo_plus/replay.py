@@ -1,29 +1,47 @@
-"""Replay memory of past rollouts and the recomputation of their advantages (thesis section 5.3.1).
+"""Replay memory of past segments and the recomputation of their advantages (thesis section 5.3.1).
 
-A :class:`StoredRollout` keeps what is needed to re-evaluate a rollout under the *current* value
-function and observation statistics: raw observations, actions, the sampling policy's
-log-probabilities, raw rewards, episode starts, the step index inside the episode, and the terminal
-observations of time-limit truncations (for bootstrapping).
+A :class:`~sb3_trpo_plus.segment.Segment` keeps what is needed to evaluate it again under the *current* value
+function and observation statistics: raw observations, actions, the sampling policy's log-probabilities, raw
+rewards, episode starts, the step index inside the episode, and the raw terminal observations of time-limit
+truncations (for bootstrapping). :func:`recompute_advantages` does that evaluation.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+
+from sb3_trpo_plus.segment import Segment
 
 ValueFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """``values = value_fn(observations, episode_timesteps)`` on flat batches (already normalised obs)."""
 
 
+@dataclass(frozen=True)
+class RolloutEvaluation:
+    """A stored segment evaluated with the current value function and statistics (:func:`recompute_advantages`).
+
+    :param segment: the stored segment
+    :param observations: its raw observations, normalised and flattened to ``(n_steps * n_envs, *obs_shape)`` in
+        ``[step, env]`` order
+    :param values: current value estimates, shaped ``[step, env]``
+    :param advantages: GAE advantages, shaped ``[step, env]``
+    :param returns: ``advantages + values``, shaped ``[step, env]``
+    """
+
+    segment: Segment
+    observations: np.ndarray
+    values: np.ndarray
+    advantages: np.ndarray
+    returns: np.ndarray
+
+
 @dataclass
 class StoredRollout:
-    """One rollout of ``n_steps`` x ``n_envs`` transitions, stored for replay.
-
-    Arrays are indexed ``[step, env]``. Observations and rewards are the environment's own values
-    (before any ``VecNormalize``), so they can be re-normalised with the statistics of a later update.
-    """
+    """The replay record of models saved by version 0.1.0, read only to convert it (:meth:`to_segment`)."""
 
     observations: np.ndarray
     actions: np.ndarray
@@ -38,103 +56,23 @@ class StoredRollout:
     terminal_observations: np.ndarray | None = None
     terminal_timesteps: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
-    @property
-    def n_samples(self) -> int:
-        return int(self.rewards.size)
-
-
-@dataclass(frozen=True)
-class RolloutEvaluation:
-    """A stored rollout re-evaluated with the current value function and statistics (:func:`recompute_advantages`).
-
-    :param rollout: the stored rollout
-    :param observations: its observations, normalised and flattened to ``(n_steps * n_envs, *obs_shape)`` in
-        ``[step, env]`` order
-    :param values: current value estimates, shaped ``[step, env]``
-    :param advantages: GAE advantages, shaped ``[step, env]``
-    :param returns: ``advantages + values``, shaped ``[step, env]``
-    """
-
-    rollout: StoredRollout
-    observations: np.ndarray
-    values: np.ndarray
-    advantages: np.ndarray
-    returns: np.ndarray
-
-
-class RolloutRecorder:
-    """Accumulates one :class:`StoredRollout` step by step during ``collect_rollouts``.
-
-    Preallocates its arrays once per rollout, so a step is a handful of array copies.
-    """
-
-    def __init__(self, n_steps: int, n_envs: int, obs_shape: tuple[int, ...], obs_dtype: np.dtype, action_dim: int):
-        self.n_steps, self.n_envs = n_steps, n_envs
-        self.obs_shape, self.obs_dtype, self.action_dim = obs_shape, obs_dtype, action_dim
-        self._pos = 0
-        self._allocate()
-
-    def _allocate(self) -> None:
-        shape = (self.n_steps, self.n_envs)
-        self.observations = np.zeros(shape + self.obs_shape, dtype=self.obs_dtype)
-        self.actions = np.zeros((*shape, self.action_dim), dtype=np.float32)
-        self.log_probs = np.zeros(shape, dtype=np.float32)
-        self.rewards = np.zeros(shape, dtype=np.float32)
-        self.episode_starts = np.zeros(shape, dtype=np.float32)
-        self.episode_timesteps = np.zeros(shape, dtype=np.int64)
-        self._truncated: list[tuple[int, int]] = []
-        self._terminal_obs: list[np.ndarray] = []
-        self._terminal_t: list[int] = []
-
-    def reset(self) -> None:
-        """Start a new rollout (fresh arrays: the previous ones may now live in the memory)."""
-        self._pos = 0
-        self._allocate()
-
-    def add(
-        self,
-        observations: np.ndarray,
-        actions: np.ndarray,
-        log_probs: np.ndarray,
-        rewards: np.ndarray,
-        episode_starts: np.ndarray,
-        episode_timesteps: np.ndarray,
-    ) -> None:
-        """Record one vectorised step (all arguments have a leading ``n_envs`` axis)."""
-        pos = self._pos
-        self.observations[pos] = observations
-        self.actions[pos] = actions.reshape(self.n_envs, self.action_dim)
-        self.log_probs[pos] = log_probs
-        self.rewards[pos] = rewards
-        self.episode_starts[pos] = episode_starts
-        self.episode_timesteps[pos] = episode_timesteps
-        self._pos += 1
-
-    def add_truncation(self, env_index: int, terminal_observation: np.ndarray, terminal_timestep: int) -> None:
-        """Record that the step just added ended env ``env_index``'s episode by a time limit."""
-        self._truncated.append((self._pos - 1, env_index))
-        self._terminal_obs.append(np.asarray(terminal_observation, dtype=self.obs_dtype))
-        self._terminal_t.append(terminal_timestep)
-
-    def finish(self, last_observations: np.ndarray, last_dones: np.ndarray, last_timesteps: np.ndarray) -> StoredRollout:
-        """Return the completed rollout."""
-        if self._pos != self.n_steps:
-            raise RuntimeError(f"rollout has {self._pos} of {self.n_steps} steps")
-        terminal = np.stack(self._terminal_obs) if self._terminal_obs else None
-        return StoredRollout(
-            observations=self.observations,
-            actions=self.actions,
-            log_probs=self.log_probs,
-            rewards=self.rewards,
-            episode_starts=self.episode_starts,
-            episode_timesteps=self.episode_timesteps,
-            last_observations=np.array(last_observations, dtype=self.obs_dtype),
-            last_dones=np.asarray(last_dones, dtype=np.float32).copy(),
-            last_timesteps=np.array(last_timesteps, dtype=np.int64),
-            truncated_steps=np.array(self._truncated, dtype=np.int64).reshape(-1, 2),
-            terminal_observations=terminal,
-            terminal_timesteps=np.array(self._terminal_t, dtype=np.int64),
-        )
+    def to_segment(self) -> Segment:
+        """The segment with this record's raw data. A 0.1.0 record kept neither the policy's inputs nor the values
+        it was collected with; replay never reads them: they are the raw observations and zeros here."""
+        n_steps, n_envs = self.rewards.shape
+        raw = np.concatenate([self.observations, self.last_observations[None]])
+        dones = np.concatenate([self.episode_starts[1:], self.last_dones[None]]).astype(bool)
+        zeros = np.zeros((n_steps, n_envs), dtype=np.float32)
+        ended: list[list[tuple[int, dict[str, Any]]]] = [[] for _ in range(n_steps)]
+        return Segment(
+            observations=self.observations, raw_observations=raw, last_observation=self.last_observations,
+            actions=self.actions, rewards=self.rewards, buffer_rewards=self.rewards, raw_rewards=self.rewards,
+            episode_starts=self.episode_starts, dones=dones,
+            episode_timesteps=np.concatenate([self.episode_timesteps, self.last_timesteps[None]]), values=zeros,
+            log_probs=self.log_probs, last_values=np.zeros(n_envs, dtype=np.float32), ended=ended,
+            truncated_steps=self.truncated_steps, terminal_observations=self.terminal_observations,
+            terminal_timesteps=self.terminal_timesteps,
+        )  # fmt: skip
 
 
 def compute_gae(
@@ -181,45 +119,48 @@ def bootstrap_truncations(
 
 
 def recompute_advantages(
-    rollout: StoredRollout,
+    segment: Segment,
     value_fn: ValueFunction,
     gamma: float,
     gae_lambda: float,
     normalize_obs: Callable[[np.ndarray], np.ndarray] | None = None,
     normalize_reward: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> RolloutEvaluation:
-    """Re-evaluate a stored rollout with the current value function and statistics.
+    """Evaluate a stored segment again with the current value function and statistics.
 
-    :param rollout: the stored rollout
+    :param segment: the stored segment (array observations)
     :param value_fn: current value function on flat (normalised) observations and episode timesteps
     :param normalize_obs: current observation normalisation (``VecNormalize.normalize_obs``), if any
     :param normalize_reward: current reward normalisation (``VecNormalize.normalize_reward``), if any
-    :return: the rollout's normalised observations, values, advantages and returns
+    :return: the segment's normalised observations, values, advantages and returns
     """
-    n_steps, n_envs = rollout.rewards.shape
+    n_steps, n_envs = segment.raw_rewards.shape
     identity = _identity
+    raw_observations = segment.raw_observations
+    assert isinstance(raw_observations, np.ndarray), "replay needs array observations"
 
     def prepare(obs: np.ndarray) -> np.ndarray:
         return (normalize_obs or identity)(obs).astype(np.float32, copy=False)
 
-    obs_shape = rollout.observations.shape[2:]
-    flat_obs = prepare(rollout.observations.reshape(n_steps * n_envs, *obs_shape))
-    # One batched call for every state we need a value of: rollout, last and terminal observations
-    batches = [flat_obs, prepare(rollout.last_observations)]
-    times = [rollout.episode_timesteps.reshape(-1), rollout.last_timesteps]
-    if rollout.terminal_observations is not None:
-        batches.append(prepare(rollout.terminal_observations))
-        times.append(rollout.terminal_timesteps)
+    obs_shape = raw_observations.shape[2:]
+    flat_obs = prepare(raw_observations[:n_steps].reshape(n_steps * n_envs, *obs_shape))
+    # One batched call for every state we need a value of: the steps', the last and the terminal observations
+    batches = [flat_obs, prepare(raw_observations[n_steps])]
+    times = [segment.episode_timesteps[:n_steps].reshape(-1), segment.episode_timesteps[n_steps]]
+    if segment.terminal_observations is not None:
+        assert isinstance(segment.terminal_observations, np.ndarray)
+        batches.append(prepare(segment.terminal_observations))
+        times.append(segment.terminal_timesteps)
     all_values = value_fn(np.concatenate(batches), np.concatenate(times)).reshape(-1).astype(np.float32)
     values = all_values[: n_steps * n_envs].reshape(n_steps, n_envs)
     last_values = all_values[n_steps * n_envs : n_steps * n_envs + n_envs]
     terminal_values = all_values[n_steps * n_envs + n_envs :]
-    rewards = (normalize_reward or identity)(rollout.rewards).astype(np.float32)
-    rewards = bootstrap_truncations(rewards, rollout.truncated_steps, terminal_values, gamma)
+    rewards = (normalize_reward or identity)(segment.raw_rewards).astype(np.float32)
+    rewards = bootstrap_truncations(rewards, segment.truncated_steps, terminal_values, gamma)
     advantages, returns = compute_gae(
-        rewards, values, rollout.episode_starts, last_values, rollout.last_dones, gamma, gae_lambda
+        rewards, values, segment.episode_starts, last_values, segment.dones[-1], gamma, gae_lambda
     )
-    return RolloutEvaluation(rollout=rollout, observations=flat_obs, values=values, advantages=advantages, returns=returns)
+    return RolloutEvaluation(segment=segment, observations=flat_obs, values=values, advantages=advantages, returns=returns)
 
 
 def _identity(x: np.ndarray) -> np.ndarray:

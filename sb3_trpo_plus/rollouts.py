@@ -51,12 +51,12 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.monitor import ResultsWriter
 from stable_baselines3.common.policies import ActorCriticPolicy
-from stable_baselines3.common.utils import obs_as_tensor
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 from sb3_trpo_plus.arguments import Rule, check_arguments, choice, integer, keywords, names, number, optional
 from sb3_trpo_plus.ray_cluster import check_cluster_token, use_loopback_for_local_ray
+from sb3_trpo_plus.segment import LoopState, Normalizer, Segment, collect_segment
 from sb3_trpo_plus.vec_env import RolloutWorkerError, _death_cause
 
 __all__ = [
@@ -112,30 +112,6 @@ WORKER_ENVS_RULES: dict[str, Rule] = {
 """Every field of :class:`WorkerEnvs` and what it accepts."""
 
 
-# ---------------------------------------------------------------------------------------------------- checks
-@contextlib.contextmanager
-def unvalidated_distributions() -> Iterator[None]:
-    """``torch.distributions`` without argument checks while it lasts: the checks are a third of a small policy's
-    forward pass per step. Collection checks the policy's inputs instead (``check_finite_observations``), and the
-    update keeps the weights finite, so the checks would never fire."""
-    previous = th.distributions.Distribution._validate_args
-    th.distributions.Distribution.set_default_validate_args(False)
-    try:
-        yield
-    finally:
-        th.distributions.Distribution.set_default_validate_args(previous)
-
-
-def check_finite_observations(observations: Any, source: str) -> None:
-    """Raise ``ValueError`` naming the first env whose observation holds a NaN or an infinity."""
-    arrays = observations.values() if isinstance(observations, dict) else [observations]
-    for array in arrays:
-        finite = np.isfinite(np.asarray(array, dtype=np.float64).reshape(len(array), -1)).all(axis=1)
-        if not finite.all():
-            index = int(np.flatnonzero(~finite)[0])
-            raise ValueError(f"{source}: env {index} returned a non-finite observation: {np.asarray(array)[index]}")
-
-
 # ---------------------------------------------------------------------------------------------------- data records
 @dataclass(frozen=True)
 class WorkerEnvs:
@@ -181,46 +157,6 @@ class WorkerEnvs:
 
 
 @dataclass(frozen=True)
-class Normalizer:
-    """A frozen copy of a ``VecNormalize``'s statistics and settings: its ``normalize_obs`` / ``normalize_reward``."""
-
-    obs_mean: np.ndarray
-    obs_var: np.ndarray
-    ret_var: float
-    epsilon: float
-    clip_obs: float
-    clip_reward: float
-    norm_obs: bool
-    norm_reward: bool
-
-    @classmethod
-    def of(cls, vec_normalize: VecNormalize | None) -> Normalizer | None:
-        if vec_normalize is None:
-            return None
-        if isinstance(vec_normalize.obs_rms, dict):
-            raise ValueError("rollout workers normalise array observations; this VecNormalize has dict statistics")
-        return cls(
-            obs_mean=vec_normalize.obs_rms.mean.copy(), obs_var=vec_normalize.obs_rms.var.copy(),
-            ret_var=float(vec_normalize.ret_rms.var), epsilon=float(vec_normalize.epsilon),
-            clip_obs=float(vec_normalize.clip_obs), clip_reward=float(vec_normalize.clip_reward),
-            norm_obs=bool(vec_normalize.norm_obs), norm_reward=bool(vec_normalize.norm_reward),
-        )  # fmt: skip
-
-    def obs(self, observations: np.ndarray) -> np.ndarray:
-        if not self.norm_obs:
-            return observations
-        normalized = np.clip(
-            (observations - self.obs_mean) / np.sqrt(self.obs_var + self.epsilon), -self.clip_obs, self.clip_obs
-        )
-        return normalized.astype(np.float32)
-
-    def reward(self, rewards: np.ndarray) -> np.ndarray:
-        if self.norm_reward:
-            rewards = np.clip(rewards / np.sqrt(self.ret_var + self.epsilon), -self.clip_reward, self.clip_reward)
-        return rewards.astype(np.float32)
-
-
-@dataclass(frozen=True)
 class SegmentOrder:
     """What the learner sends every worker once per iteration.
 
@@ -234,74 +170,6 @@ class SegmentOrder:
     gamma: float
     weights: dict[str, th.Tensor]
     normalizer: Normalizer | None
-
-
-@dataclass
-class Segment:
-    """One worker's ``n_steps`` x ``n_envs`` transitions; arrays are indexed ``[step, env]``.
-
-    :param observations: the policy's inputs (normalised with the order's statistics)
-    :param raw_observations: the envs' observations, ``n_steps + 1`` of them (the last: after the last step)
-    :param last_observation: the policy's input after the last step
-    :param actions: the policy's actions (before clipping to the action space)
-    :param rewards: the rewards as ``VecNormalize`` gives them (normalised with the order's statistics)
-    :param buffer_rewards: ``rewards`` plus ``gamma * V(terminal observation)`` at time-limit truncations, as SB3's
-        ``collect_rollouts`` adds them: what the rollout buffer takes
-    :param raw_rewards: the envs' rewards
-    :param episode_starts: whether each step's observation starts an episode
-    :param dones: whether each step ended an episode
-    :param episode_timesteps: each step's index inside its episode, ``n_steps + 1`` rows
-    :param values: the value estimates of ``observations``
-    :param log_probs: the log-probabilities of ``actions``
-    :param last_values: the value estimates of ``last_observation``
-    :param ended: per step, ``(env, info)`` of each episode that ended (its raw ``terminal_observation`` included)
-    :param seconds: the worker's time for the segment
-    :param restarted: per env, whether a restart of its worker reset it since the previous segment (set by the pool)
-    """
-
-    observations: np.ndarray
-    raw_observations: np.ndarray
-    last_observation: np.ndarray
-    actions: np.ndarray
-    rewards: np.ndarray
-    buffer_rewards: np.ndarray
-    raw_rewards: np.ndarray
-    episode_starts: np.ndarray
-    dones: np.ndarray
-    episode_timesteps: np.ndarray
-    values: np.ndarray
-    log_probs: np.ndarray
-    last_values: np.ndarray
-    ended: list[list[tuple[int, dict[str, Any]]]]
-    seconds: float
-    restarted: np.ndarray | None = None
-
-    @classmethod
-    def concatenate(cls, segments: Sequence[Segment]) -> Segment:
-        """The segments of workers ``0, 1, ...`` side by side: one segment over all their envs."""
-
-        def cat(name: str) -> np.ndarray:
-            return np.concatenate([getattr(segment, name) for segment in segments], axis=1)
-
-        offsets = np.cumsum([0] + [segment.dones.shape[1] for segment in segments])
-        n_steps = segments[0].dones.shape[0]
-        ended = [
-            [
-                (int(offset) + env, info)
-                for segment, offset in zip(segments, offsets[:-1], strict=True)
-                for env, info in segment.ended[t]
-            ]
-            for t in range(n_steps)
-        ]
-        restarted = [s.restarted if s.restarted is not None else np.zeros(s.dones.shape[1], bool) for s in segments]
-        return cls(
-            observations=cat("observations"), raw_observations=cat("raw_observations"),
-            last_observation=np.concatenate([s.last_observation for s in segments]), actions=cat("actions"),
-            rewards=cat("rewards"), buffer_rewards=cat("buffer_rewards"), raw_rewards=cat("raw_rewards"),
-            episode_starts=cat("episode_starts"), dones=cat("dones"), episode_timesteps=cat("episode_timesteps"),
-            values=cat("values"), log_probs=cat("log_probs"), last_values=np.concatenate([s.last_values for s in segments]),
-            ended=ended, seconds=max(s.seconds for s in segments), restarted=np.concatenate(restarted),
-        )  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------------- the worker
@@ -393,93 +261,30 @@ class RolloutWorker:
 
     # -- whole segments
     def collect(self, order: SegmentOrder) -> Segment:
-        """Step every env ``order.n_steps`` times with the order's policy weights: SB3's ``collect_rollouts`` loop."""
-        start = time.perf_counter()
+        """Step every env ``order.n_steps`` times with the order's policy weights (:func:`collect_segment`)."""
         if self.policy is None:
             raise RuntimeError(f"rollout worker {self.index}: collect before set_policy")
         if self._raw_obs is None:
             raise RuntimeError(f"rollout worker {self.index}: collect before reset")
         policy = self.policy
         policy.load_state_dict(order.weights)
-        policy.set_training_mode(False)
-        norm, env = order.normalizer, self.env
-        n_steps, n_envs = order.n_steps, env.num_envs
-        action_space = env.action_space
+        norm = order.normalizer
         raw = self._raw_obs
-        raw_observations = np.zeros((n_steps + 1, *raw.shape), dtype=raw.dtype)
-        observations: np.ndarray | None = None
-        actions_out: np.ndarray | None = None
-        rewards_out = np.zeros((n_steps, n_envs), dtype=np.float32)
-        buffer_rewards = np.zeros((n_steps, n_envs), dtype=np.float32)
-        raw_rewards = np.zeros((n_steps, n_envs), dtype=np.float32)
-        episode_starts = np.zeros((n_steps, n_envs), dtype=np.float32)
-        dones_out = np.zeros((n_steps, n_envs), dtype=bool)
-        episode_timesteps = np.zeros((n_steps + 1, n_envs), dtype=np.int64)
-        values_out = np.zeros((n_steps, n_envs), dtype=np.float32)
-        log_probs_out = np.zeros((n_steps, n_envs), dtype=np.float32)
-        ended: list[list[tuple[int, dict[str, Any]]]] = []
-        obs = norm.obs(raw) if norm is not None else raw
-        check_finite_observations(obs, f"rollout worker {self.index}")
-        # one grad-free context for the whole segment
-        with self._own_generator(), th.inference_mode(), unvalidated_distributions():
-            for t in range(n_steps):
-                raw_observations[t] = raw
-                episode_starts[t] = self._episode_starts
-                episode_timesteps[t] = self._timesteps
-                actions_t, values, log_probs = policy(obs_as_tensor(obs, policy.device))
-                actions = actions_t.cpu().numpy()
-                clipped = actions
-                if isinstance(action_space, spaces.Box):
-                    clipped = (
-                        policy.unscale_action(clipped)
-                        if policy.squash_output
-                        else np.clip(actions, action_space.low, action_space.high)
-                    )
-                new_raw, raw_reward, dones, infos = env.step(clipped)
-                assert isinstance(new_raw, np.ndarray)
-                rewards = norm.reward(raw_reward) if norm is not None else np.array(raw_reward, dtype=np.float32)
-                bootstrapped = rewards.copy()
-                done_infos: list[tuple[int, dict[str, Any]]] = []
-                for idx in np.flatnonzero(dones):
-                    info = infos[idx]
-                    terminal = info.get("terminal_observation")
-                    if terminal is not None and info.get("TimeLimit.truncated", False):
-                        terminal_input = norm.obs(terminal) if norm is not None else terminal
-                        terminal_obs = policy.obs_to_tensor(terminal_input)[0]
-                        terminal_value = policy.predict_values(terminal_obs)[0]  # type: ignore[arg-type]
-                        bootstrapped[idx] += order.gamma * terminal_value
-                    done_infos.append((int(idx), info))
-                if observations is None:
-                    observations = np.zeros((n_steps, *obs.shape), dtype=obs.dtype)  # float32 when normalised
-                    actions_out = np.zeros((n_steps, *actions.shape), dtype=actions.dtype)
-                assert actions_out is not None
-                observations[t] = obs
-                actions_out[t] = actions
-                rewards_out[t] = rewards
-                buffer_rewards[t] = bootstrapped
-                raw_rewards[t] = raw_reward
-                dones_out[t] = dones
-                values_out[t] = values.cpu().numpy().flatten()
-                log_probs_out[t] = log_probs.cpu().numpy()
-                ended.append(done_infos)
-                self._advance(new_raw, dones)
-                raw = new_raw
-                obs = norm.obs(raw) if norm is not None else raw
-                check_finite_observations(obs, f"rollout worker {self.index}")
-            last_values = policy.predict_values(obs_as_tensor(obs, policy.device)).cpu().numpy().flatten()  # type: ignore[arg-type]
-        raw_observations[n_steps] = raw
-        episode_timesteps[n_steps] = self._timesteps
-        assert observations is not None and actions_out is not None
-        return Segment(
-            observations=observations, raw_observations=raw_observations, last_observation=np.array(obs),
-            actions=actions_out, rewards=rewards_out, buffer_rewards=buffer_rewards, raw_rewards=raw_rewards,
-            episode_starts=episode_starts, dones=dones_out, episode_timesteps=episode_timesteps, values=values_out,
-            log_probs=log_probs_out, last_values=last_values.astype(np.float32), ended=ended,
-            seconds=time.perf_counter() - start,
-        )  # fmt: skip
+        state = LoopState(norm.obs(raw) if norm is not None else raw, raw, self._episode_starts, self._timesteps)
+        with self._own_generator():
+            segment = collect_segment(
+                policy, self.env, order.n_steps, state, gamma=order.gamma, normalizer=norm,
+                source=f"rollout worker {self.index}",
+            )  # fmt: skip
+        assert segment is not None and isinstance(state.raw_observation, np.ndarray)
+        self._raw_obs, self._episode_starts, self._timesteps = (
+            state.raw_observation,
+            state.episode_starts,
+            state.episode_timesteps,
+        )
+        return segment
 
 
-# ---------------------------------------------------------------------------------------------------- backends
 class _WorkerDied(Exception):
     """A worker's process or node is gone (the pool may restart it)."""
 

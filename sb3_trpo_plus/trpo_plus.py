@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import math
 import os
@@ -19,7 +20,7 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from sb3_contrib import TRPO
-from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.buffers import DictRolloutBuffer, RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.distributions import Distribution, kl_divergence
 from stable_baselines3.common.policies import ActorCriticPolicy
@@ -41,20 +42,20 @@ from sb3_trpo_plus.natural_gradient import (
 )
 from sb3_trpo_plus.replay import (
     RolloutEvaluation,
-    RolloutRecorder,
     StoredRollout,
     effective_sample_size,
     importance_weights,
     recompute_advantages,
 )
-from sb3_trpo_plus.rollouts import (
+from sb3_trpo_plus.rollouts import RolloutWorkers, buried_rollout_workers, rollout_workers
+from sb3_trpo_plus.segment import (
+    LoopState,
     Normalizer,
-    RolloutWorkers,
     Segment,
-    buried_rollout_workers,
-    check_finite_observations,
-    rollout_workers,
-    unvalidated_distributions,
+    SegmentDictRolloutBuffer,
+    SegmentRolloutBuffer,
+    StepLocals,
+    collect_segment,
 )
 
 SelfTRPOPlus = TypeVar("SelfTRPOPlus", bound="TRPOPlus")
@@ -127,8 +128,11 @@ HYPERPARAMETER_RULES: dict[str, Rule] = {
     "use_sde": boolean(),
     "sde_sample_freq": integer(-1),
     "rollout_buffer_class": Rule(
-        lambda value: value is None or (isinstance(value, type) and issubclass(value, RolloutBuffer)),
-        "None or a RolloutBuffer subclass",
+        lambda value: (
+            value is None or (isinstance(value, type) and issubclass(value, SegmentRolloutBuffer | SegmentDictRolloutBuffer))
+        ),
+        "None or a subclass of sb3_trpo_plus.segment.SegmentRolloutBuffer or SegmentDictRolloutBuffer (TRPOPlus fills "
+        "its buffer from collected segments)",
     ),
     "rollout_buffer_kwargs": optional(dict, "a dict"),
     "normalize_advantage": boolean(),
@@ -242,36 +246,6 @@ class ValueFit:
     skipped_steps: int
 
 
-class _AfterEachStep(BaseCallback):
-    """Runs ``callback`` as SB3 would, then ``after_step(locals)`` for each step that ``callback`` lets count.
-
-    SB3's ``collect_rollouts`` passes its local variables (``new_obs``, ``rewards``, ``dones``, ``infos``,
-    ``actions``, ``log_probs``) to its callback right after ``env.step``, before it bootstraps time-limit
-    truncations into the rewards and updates ``_last_obs``.
-    """
-
-    def __init__(self, model: TRPOPlus, callback: BaseCallback, after_step: Callable[[dict[str, Any]], None]):
-        super().__init__()
-        self.callback = callback
-        self.after_step = after_step
-        self.init_callback(model)
-
-    def update_child_locals(self, locals_: dict[str, Any]) -> None:
-        self.callback.update_locals(locals_)
-
-    def _on_rollout_start(self) -> None:
-        self.callback.on_rollout_start()
-
-    def _on_step(self) -> bool:
-        if not self.callback.on_step():
-            return False
-        self.after_step(self.locals)
-        return True
-
-    def _on_rollout_end(self) -> None:
-        self.callback.on_rollout_end()
-
-
 class TRPOPlus(TRPO):
     """
     Trust Region Policy Optimization with replay memory and warm-started conjugate gradient.
@@ -299,7 +273,8 @@ class TRPOPlus(TRPO):
     :param gae_lambda: GAE lambda (1.0 gives the thesis' Monte-Carlo returns)
     :param use_sde: Use generalized State Dependent Exploration (gSDE)
     :param sde_sample_freq: Sample a new gSDE noise matrix every n steps (-1: once per rollout)
-    :param rollout_buffer_class: Rollout buffer class (default: SB3's ``RolloutBuffer``)
+    :param rollout_buffer_class: Rollout buffer class (default: ``SegmentRolloutBuffer``, SB3's ``RolloutBuffer`` filled
+        from a collected segment; ``SegmentDictRolloutBuffer`` for ``Dict`` observations)
     :param rollout_buffer_kwargs: Keyword arguments for the rollout buffer
     :param normalize_advantage: Normalise advantages over the update batch (current + replayed samples)
     :param target_kl: Trust-region radius ``delta``: maximum mean KL between successive policies (thesis: 0.01),
@@ -418,11 +393,11 @@ class TRPOPlus(TRPO):
                 f"got {type(self.observation_space).__name__}"
             )
         # State that survives save/load (see `_setup_model`, which keeps loaded values)
-        self.rollout_memory: deque[StoredRollout] | None = None
+        self.rollout_memory: deque[Segment] | None = None
         self.linear_baseline: LinearFeatureBaseline | None = None
         self.previous_step: np.ndarray | None = None
-        self._last_original_obs: np.ndarray | None = None
-        self._episode_timesteps: np.ndarray | None = None
+        # beside SB3's _last_obs and _last_episode_starts: the step index of _last_obs in its episode, per env
+        self._last_episode_timesteps: np.ndarray | None = None
         self._rng_states: dict[str, Any] | None = None
         if _init_setup_model:
             self._setup_model()
@@ -433,6 +408,10 @@ class TRPOPlus(TRPO):
         return self.replay_memory > 0 or self.value_baseline == "linear"
 
     def _setup_model(self) -> None:
+        # None, or SB3's own classes in a model saved by version 0.1.0: the buffers that hold their segment
+        if self.rollout_buffer_class in (None, RolloutBuffer, DictRolloutBuffer):
+            dict_space = isinstance(self.observation_space, spaces.Dict)
+            self.rollout_buffer_class = SegmentDictRolloutBuffer if dict_space else SegmentRolloutBuffer
         super()._setup_model()
         self._update_target_kl()
         self._actor_params = actor_parameters(self.policy)  # type: ignore[arg-type]
@@ -440,15 +419,6 @@ class TRPOPlus(TRPO):
         self.rollout_memory = deque(memory or [], maxlen=max(self.replay_memory, 1))
         if self.value_baseline == "linear" and getattr(self, "linear_baseline", None) is None:
             self.linear_baseline = LinearFeatureBaseline(l2_reg=self.linear_baseline_l2)
-        # the raw record of the last rollout, for the linear baseline and then the replay memory
-        self._current_rollout: StoredRollout | None = None
-
-    def _make_recorder(self, n_envs: int) -> RolloutRecorder:
-        obs_space = self.observation_space
-        obs_shape = obs_space.shape if obs_space.shape else (1,)
-        assert obs_space.dtype is not None
-        action_dim = int(np.prod(self.action_space.shape)) if self.action_space.shape else 1
-        return RolloutRecorder(self.n_steps, n_envs, tuple(obs_shape), np.dtype(obs_space.dtype), action_dim)
 
     def _setup_learn(
         self,
@@ -465,10 +435,8 @@ class TRPOPlus(TRPO):
             np.random.set_state(states["numpy"])
             random.setstate(states["python"])
         result = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
-        vec_normalize = self.get_vec_normalize_env()
-        if reset or self._last_original_obs is None or self._episode_timesteps is None:
-            self._last_original_obs = vec_normalize.get_original_obs() if vec_normalize is not None else self._last_obs  # type: ignore[assignment]
-            self._episode_timesteps = np.zeros(self.n_envs, dtype=np.int64)
+        if reset or self._last_episode_timesteps is None:  # SB3 reset the env: every episode at its first step
+            self._last_episode_timesteps = np.zeros(self.n_envs, dtype=np.int64)
         return result
 
     # ------------------------------------------------------------------ rollouts
@@ -479,119 +447,118 @@ class TRPOPlus(TRPO):
         rollout_buffer: RolloutBuffer,
         n_rollout_steps: int,
     ) -> bool:
-        """SB3's rollout collection; each step is also recorded raw for the replay memory / linear baseline.
+        """SB3's ``collect_rollouts``: one segment collected (:func:`~sb3_trpo_plus.segment.collect_segment`), the
+        callback's ``on_step`` fired at every step with SB3's locals, the rollout buffer filled from the segment
+        (which it keeps for the update and the replay memory).
 
         On a pool of rollout workers (``sb3_trpo_plus.rollouts``, bare or under one ``VecNormalize``) the workers
-        collect whole segments instead (:meth:`_collect_segments`).
+        collect the segment with the same loop, and the callback's steps follow once it arrived
+        (:meth:`_segment_from_workers`).
         """
-        recorder = self._make_recorder(env.num_envs) if self._needs_rollout_record else None
+        assert self._last_obs is not None, "No previous observation was provided"
+        if not isinstance(rollout_buffer, SegmentRolloutBuffer | SegmentDictRolloutBuffer):
+            raise TypeError(f"TRPOPlus fills a SegmentRolloutBuffer from its segments, got {type(rollout_buffer).__name__}")
         pool = rollout_workers(env)
-        if pool is not None:
-            return self._collect_segments(pool[0], pool[1], callback, rollout_buffer, n_rollout_steps, recorder)
-        if buried_rollout_workers(env):  # shown once per program by Python's default warning filter
+        if pool is None and buried_rollout_workers(env):  # shown once per program by Python's default warning filter
             warnings.warn(
                 f"the rollout workers are wrapped by {type(env).__name__}: TRPOPlus steps them one step at a time "
                 "(no segments, no restarts); wrap them with one VecNormalize at most to collect whole segments",
                 stacklevel=2,
             )
-
-        def record(step: dict[str, Any]) -> None:
-            check_finite_observations(step["new_obs"], type(env).__name__)
-            self._record_step(recorder, step)
-
-        check_finite_observations(self._last_obs, type(env).__name__)
-        with unvalidated_distributions():
-            if not super().collect_rollouts(env, _AfterEachStep(self, callback, record), rollout_buffer, n_rollout_steps):
-                return False
-        if recorder is not None:
-            assert self._last_original_obs is not None and self._episode_timesteps is not None
-            self._current_rollout = recorder.finish(
-                self._last_original_obs,
-                self._last_episode_starts,  # type: ignore[arg-type]  # the last step's dones
-                self._episode_timesteps,
-            )
-        return True
-
-    def _collect_segments(
-        self,
-        pool: RolloutWorkers,
-        vec_normalize: VecNormalize | None,
-        callback: BaseCallback,
-        rollout_buffer: RolloutBuffer,
-        n_rollout_steps: int,
-        recorder: RolloutRecorder | None,
-    ) -> bool:
-        """Every worker collects ``n_rollout_steps`` steps with the current weights; then, step by step as SB3's
-        ``collect_rollouts`` would have: the ``VecNormalize`` statistics see the raw observations and rewards, the
-        callback's ``on_step`` fires (with ``new_obs``, ``rewards``, ``dones``, ``infos``, ``actions``, ``values``,
-        ``log_probs``; ``infos`` hold the dicts of the episodes that ended, ``{}`` for the others), the episode
-        statistics and the rollout buffer are filled.
-        """
-        if self.use_sde:
+        if pool is not None and self.use_sde:
             raise ValueError("rollout workers sample without gSDE: use_sde=True needs a VecEnv stepped by the learner")
         self.policy.set_training_mode(False)
         rollout_buffer.reset()
+        if self.use_sde:
+            self.policy.reset_noise(env.num_envs)
         callback.on_rollout_start()
+        if pool is not None:
+            segment = self._segment_from_workers(pool[0], pool[1], callback, n_rollout_steps)
+        else:
+            segment = self._segment_from_env(env, callback, rollout_buffer, n_rollout_steps)
+        if segment is None:  # the callback stopped training: the partial rollout is dropped, as in SB3
+            return False
+        self._last_obs = segment.last_observation  # type: ignore[assignment]
+        self._last_episode_starts = segment.dones[-1]
+        self._last_episode_timesteps = segment.episode_timesteps[-1].copy()
+        rollout_buffer.fill(segment)
+        callback.update_locals(
+            {"new_obs": segment.last_observation, "dones": segment.dones[-1], "rollout_buffer": rollout_buffer,
+             "values": th.as_tensor(segment.last_values)}
+        )  # fmt: skip
+        callback.on_rollout_end()
+        return True
+
+    def _segment_from_env(
+        self, env: VecEnv, callback: BaseCallback, rollout_buffer: RolloutBuffer, n_rollout_steps: int
+    ) -> Segment | None:
+        """The learner steps ``env`` itself; the callback fires after each ``env.step`` (None: it stopped training)."""
+        vec_normalize = self.get_vec_normalize_env()
+        assert self._last_episode_timesteps is not None
+        state = LoopState(
+            observation=self._last_obs,  # type: ignore[arg-type]
+            raw_observation=vec_normalize.get_original_obs() if vec_normalize is not None else self._last_obs,  # type: ignore[arg-type]
+            episode_starts=np.asarray(self._last_episode_starts, dtype=bool),
+            episode_timesteps=self._last_episode_timesteps,
+        )
+        own = {"self": self, "env": env, "callback": callback, "rollout_buffer": rollout_buffer,
+               "n_rollout_steps": n_rollout_steps}  # fmt: skip
+
+        def on_step(step: StepLocals) -> bool:  # what SB3 does between env.step and storing the step
+            self.num_timesteps += env.num_envs
+            callback.update_locals({**own, **{f.name: getattr(step, f.name) for f in dataclasses.fields(step)}})
+            if not callback.on_step():
+                return False
+            self._update_info_buffer(step.infos, step.dones)
+            return True
+
+        return collect_segment(
+            self.policy, env, n_rollout_steps, state, gamma=self.gamma, on_step=on_step,
+            sde_sample_freq=self.sde_sample_freq if self.use_sde else None,
+        )  # fmt: skip
+
+    def _segment_from_workers(
+        self, pool: RolloutWorkers, vec_normalize: VecNormalize | None, callback: BaseCallback, n_rollout_steps: int
+    ) -> Segment | None:
+        """Every worker collects ``n_rollout_steps`` steps with the current weights; then, step by step as SB3's
+        ``collect_rollouts`` would have: the ``VecNormalize`` statistics see the raw observations and rewards, the
+        callback's ``on_step`` fires (with ``new_obs``, ``rewards``, ``dones``, ``infos``, ``actions``, ``values``,
+        ``log_probs``; ``infos`` hold the dicts of the episodes that ended, ``{}`` for the others) and the episode
+        statistics are kept (None: the callback stopped training).
+        """
         normalizer = Normalizer.of(vec_normalize)
         segment = Segment.concatenate(pool.collect_segments(self.policy, n_rollout_steps, self.gamma, normalizer))  # type: ignore[arg-type]
         n_envs = pool.num_envs
+        raw_observations, observations = segment.raw_observations, segment.observations
+        assert isinstance(raw_observations, np.ndarray) and isinstance(observations, np.ndarray)
         restarted = segment.restarted if segment.restarted is not None else np.zeros(n_envs, dtype=bool)
         if vec_normalize is not None and restarted.any():  # what VecNormalize.reset does for the reset envs
             if vec_normalize.training and vec_normalize.norm_obs:
-                vec_normalize.obs_rms.update(segment.raw_observations[0][restarted])  # type: ignore[union-attr]
+                vec_normalize.obs_rms.update(raw_observations[0][restarted])  # type: ignore[union-attr]
             vec_normalize.returns[restarted] = 0
         for t in range(n_rollout_steps):
             dones = segment.dones[t]
             infos: list[dict[str, Any]] = [{} for _ in range(n_envs)]
-            truncations = []  # (env, raw terminal observation, its step in the episode) for the replay record
             for idx, info in segment.ended[t]:
                 terminal = info.get("terminal_observation")
-                if terminal is not None and info.get("TimeLimit.truncated", False):
-                    truncations.append((idx, terminal, int(segment.episode_timesteps[t, idx]) + 1))
                 if normalizer is not None and terminal is not None:  # as VecNormalize gives it to SB3
                     info = {**info, "terminal_observation": normalizer.obs(terminal)}
                 infos[idx] = info
             if vec_normalize is not None:
-                _update_statistics(vec_normalize, segment.raw_observations[t + 1], segment.raw_rewards[t], dones)
-            new_obs = segment.observations[t + 1] if t + 1 < n_rollout_steps else segment.last_observation
-            actions, rewards = segment.actions[t], segment.rewards[t]
-            values, log_probs = th.as_tensor(segment.values[t]), th.as_tensor(segment.log_probs[t])
+                _update_statistics(vec_normalize, raw_observations[t + 1], segment.raw_rewards[t], dones)
+            new_obs = observations[t + 1] if t + 1 < n_rollout_steps else segment.last_observation
             self.num_timesteps += n_envs
             callback.update_locals(
-                {"new_obs": new_obs, "rewards": rewards, "dones": dones, "infos": infos, "actions": actions,
-                 "values": values, "log_probs": log_probs, "n_steps": t, "env": self.env, "rollout_buffer": rollout_buffer}
+                {"new_obs": new_obs, "rewards": segment.rewards[t], "dones": dones, "infos": infos,
+                 "actions": segment.actions[t], "values": th.as_tensor(segment.values[t]),
+                 "log_probs": th.as_tensor(segment.log_probs[t]), "n_steps": t, "env": self.env}
             )  # fmt: skip
             if not callback.on_step():
-                return False
+                return None
             self._update_info_buffer(infos, dones)
             pool.record_episodes(segment.ended[t])
-            rollout_buffer.add(
-                segment.observations[t],
-                actions,
-                segment.buffer_rewards[t],
-                segment.episode_starts[t],
-                values,
-                log_probs,
-            )
-            if recorder is not None:
-                recorder.add(
-                    segment.raw_observations[t], actions, segment.log_probs[t], segment.raw_rewards[t],
-                    segment.episode_starts[t], segment.episode_timesteps[t],
-                )  # fmt: skip
-                for idx, terminal, timestep in truncations:
-                    recorder.add_truncation(idx, np.asarray(terminal), timestep)
-        last_dones = segment.dones[-1]
-        self._last_obs = segment.last_observation
-        self._last_episode_starts = last_dones
-        self._last_original_obs = segment.raw_observations[-1]
-        self._episode_timesteps = segment.episode_timesteps[-1].copy()
-        rollout_buffer.compute_returns_and_advantage(last_values=th.as_tensor(segment.last_values), dones=last_dones)
-        if recorder is not None:
-            self._current_rollout = recorder.finish(segment.raw_observations[-1], last_dones, segment.episode_timesteps[-1])
         self._log_workers(pool, n_rollout_steps)
-        callback.update_locals({"new_obs": self._last_obs, "dones": last_dones, "rollout_buffer": rollout_buffer})
-        callback.on_rollout_end()
-        return True
+        return segment
 
     def _log_workers(self, pool: RolloutWorkers, n_steps: int) -> None:
         """Per-worker throughput, weight broadcast and segment transfer time of the last collection."""
@@ -604,52 +571,30 @@ class TRPOPlus(TRPO):
         record("workers/collect_steps_per_s", n_steps * pool.num_envs / max(timings["collect_s"], 1e-9))
         record("workers/restarts", sum(pool.restarts))
 
-    def _record_step(self, recorder: RolloutRecorder | None, step: dict[str, Any]) -> None:
-        """Record one step of ``collect_rollouts`` as the environment gave it (before any ``VecNormalize``).
-
-        Also advances the step counters of the running episodes and the raw last observation, which the replay
-        memory and the linear baseline need even while nothing is recorded (a resumed run may switch them on).
-        """
-        vec_normalize = self.get_vec_normalize_env()
-        episode_timesteps = self._episode_timesteps
-        assert episode_timesteps is not None
-        if recorder is not None:
-            raw_rewards = vec_normalize.get_original_reward() if vec_normalize is not None else step["rewards"]
-            recorder.add(
-                self._last_original_obs,  # type: ignore[arg-type]
-                step["actions"],
-                step["log_probs"].cpu().numpy(),
-                raw_rewards,
-                self._last_episode_starts,  # type: ignore[arg-type]
-                episode_timesteps,
-            )
-        episode_timesteps += 1
-        infos = step["infos"]
-        for idx in np.flatnonzero(step["dones"]):
-            terminal_obs = infos[idx].get("terminal_observation")
-            # SB3 bootstraps these time-limit truncations with the value function; a replay re-evaluates them
-            if recorder is not None and terminal_obs is not None and infos[idx].get("TimeLimit.truncated", False):
-                raw_terminal = vec_normalize.unnormalize_obs(terminal_obs) if vec_normalize is not None else terminal_obs
-                recorder.add_truncation(int(idx), np.asarray(raw_terminal), int(episode_timesteps[idx]))
-            episode_timesteps[idx] = 0
-        self._last_original_obs = vec_normalize.get_original_obs() if vec_normalize is not None else step["new_obs"]  # type: ignore[assignment]
-
     # ------------------------------------------------------------------ update
     def train(self) -> None:
-        """One TRPOPlus update: advantages, policy step (gradient, CG, line search), value baseline, memory."""
+        """One TRPOPlus update: advantages, policy step (gradient, CG, line search), value baseline, memory.
+
+        Learns from the segment in the rollout buffer (``collect_rollouts`` filled it) and the replay memory's.
+        """
         start = time.perf_counter()
+        segment = self.rollout_buffer.segment  # type: ignore[attr-defined]
+        if segment is None:
+            raise RuntimeError("TRPOPlus.train: the rollout buffer holds no segment; collect_rollouts fills it")
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
         self._update_target_kl()
         if self.value_baseline == "linear":
-            self._write_linear_baseline_advantages()
+            self._write_linear_baseline_advantages(segment)
         # Re-evaluate the stored rollouts once: the value function does not change before the critic fit
         replayed = self._reevaluate_memory()
         batch = self._policy_batch(replayed)
         policy_step = self._update_policy(batch)
         self.previous_step = policy_step.applied_step  # the next update's CG warm start
-        value_fit = self._update_value_baseline(replayed)
-        self._remember_current_rollout()
+        value_fit = self._update_value_baseline(segment, replayed)
+        if self.replay_memory > 0:
+            assert self.rollout_memory is not None
+            self.rollout_memory.append(segment)
         self._n_updates += 1
         self._log_update(batch, policy_step, value_fit, time.perf_counter() - start)
 
@@ -672,11 +617,11 @@ class TRPOPlus(TRPO):
             obs_tensor = self.policy.obs_to_tensor(observations)[0]
             return self.policy.predict_values(obs_tensor).cpu().numpy().reshape(-1)  # type: ignore[arg-type]
 
-    def _reevaluate(self, rollout: StoredRollout) -> RolloutEvaluation:
-        """``rollout`` under the current value function and ``VecNormalize`` statistics."""
+    def _reevaluate(self, segment: Segment) -> RolloutEvaluation:
+        """``segment`` under the current value function and ``VecNormalize`` statistics."""
         vec_normalize = self.get_vec_normalize_env()
         return recompute_advantages(
-            rollout,
+            segment,
             self._value_function,
             gamma=self.gamma,
             gae_lambda=self.gae_lambda,
@@ -690,12 +635,11 @@ class TRPOPlus(TRPO):
         """Every stored rollout, re-evaluated now (none without a replay memory)."""
         if self.replay_memory == 0 or not self.rollout_memory:
             return []
-        return [self._reevaluate(rollout) for rollout in self.rollout_memory]
+        return [self._reevaluate(segment) for segment in self.rollout_memory]
 
-    def _write_linear_baseline_advantages(self) -> None:
-        """Replace the critic's values / advantages / returns of the current rollout by the linear baseline's."""
-        assert self._current_rollout is not None
-        evaluation = self._reevaluate(self._current_rollout)
+    def _write_linear_baseline_advantages(self, segment: Segment) -> None:
+        """Replace the critic's values / advantages / returns of the current segment by the linear baseline's."""
+        evaluation = self._reevaluate(segment)
         self.rollout_buffer.values[:] = evaluation.values
         self.rollout_buffer.advantages[:] = evaluation.advantages
         self.rollout_buffer.returns[:] = evaluation.returns
@@ -709,10 +653,12 @@ class TRPOPlus(TRPO):
         if replayed:
             obs_list, act_list, logq_list, adv_list = [observations], [actions], [sampling_log_prob], [advantages]
             for evaluation in replayed:
-                rollout = evaluation.rollout
+                stored = evaluation.segment
+                # the actions as the rollout buffer holds them: float32, one row of action_dim per sample
+                stored_actions = stored.actions.reshape(stored.n_samples, -1).astype(np.float32)
                 obs_list.append(self.policy.obs_to_tensor(evaluation.observations)[0])  # type: ignore[arg-type]
-                act_list.append(th.as_tensor(rollout.actions.reshape(-1, rollout.actions.shape[-1]), device=self.device))
-                logq_list.append(th.as_tensor(rollout.log_probs.reshape(-1), device=self.device))
+                act_list.append(th.as_tensor(stored_actions, device=self.device))
+                logq_list.append(th.as_tensor(stored.log_probs.reshape(-1), device=self.device))
                 adv_list.append(th.as_tensor(evaluation.advantages.reshape(-1), device=self.device))
             observations = th.cat(obs_list)  # type: ignore[arg-type]
             actions, sampling_log_prob, advantages = th.cat(act_list), th.cat(logq_list), th.cat(adv_list)
@@ -824,10 +770,10 @@ class TRPOPlus(TRPO):
             return None
         return th.as_tensor(self.previous_step, dtype=gradient.dtype, device=gradient.device)
 
-    def _update_value_baseline(self, replayed: Sequence[RolloutEvaluation]) -> ValueFit:
+    def _update_value_baseline(self, segment: Segment, replayed: Sequence[RolloutEvaluation]) -> ValueFit:
         """Fit the critic (Adam epochs) or refit the linear baseline; ``replayed`` only with ``replay_critic``."""
         if self.value_baseline == "linear":
-            return ValueFit(loss=self._fit_linear_baseline(replayed), skipped_steps=0)
+            return ValueFit(loss=self._fit_linear_baseline(segment, replayed), skipped_steps=0)
         value_losses = []
         skipped = 0
         for _ in range(self.n_critic_updates):
@@ -876,25 +822,20 @@ class TRPOPlus(TRPO):
             idx = order[start : start + self.batch_size]
             yield observations[idx], returns[idx]
 
-    def _fit_linear_baseline(self, replayed: Sequence[RolloutEvaluation]) -> float:
-        assert self.linear_baseline is not None and self._current_rollout is not None
+    def _fit_linear_baseline(self, segment: Segment, replayed: Sequence[RolloutEvaluation]) -> float:
+        assert self.linear_baseline is not None
         buffer = self.rollout_buffer
         obs = buffer.observations.reshape(buffer.buffer_size * buffer.n_envs, -1)  # type: ignore[union-attr]
-        timesteps = self._current_rollout.episode_timesteps.reshape(-1)
+        timesteps = segment.episode_timesteps[: segment.n_steps].reshape(-1)
         returns = buffer.returns.reshape(-1)
         if self.replay_critic:
             for evaluation in replayed:
                 obs = np.concatenate([obs, evaluation.observations.reshape(len(evaluation.observations), -1)])
-                timesteps = np.concatenate([timesteps, evaluation.rollout.episode_timesteps.reshape(-1)])
+                stored = evaluation.segment
+                timesteps = np.concatenate([timesteps, stored.episode_timesteps[: stored.n_steps].reshape(-1)])
                 returns = np.concatenate([returns, evaluation.returns.reshape(-1)])
         self.linear_baseline.fit(obs, timesteps, returns)
         return float(np.mean((self.linear_baseline.predict(obs, timesteps) - returns) ** 2))
-
-    def _remember_current_rollout(self) -> None:
-        if self.replay_memory > 0 and self._current_rollout is not None:
-            assert self.rollout_memory is not None
-            self.rollout_memory.append(self._current_rollout)
-        self._current_rollout = None
 
     def _log_update(self, batch: PolicyBatch, step: PolicyStep, value_fit: ValueFit, seconds: float) -> None:
         line_search = step.line_search
@@ -1035,9 +976,22 @@ class TRPOPlus(TRPO):
             raise ValueError(f"{where}: cannot load the model (truncated or corrupted?): {cause}") from error
         # the run's random generators' states stay with the model until learn(reset_num_timesteps=False) resumes it
         # (_setup_learn); until then the program's generators are as SB3's load leaves them (seeded with model.seed)
-        if model._last_obs is None:
-            model._last_original_obs = None
+        _upgrade_from_0_1(model)
         return model
+
+
+def _upgrade_from_0_1(model: TRPOPlus) -> None:
+    """A model saved by version 0.1.0: its replay records as segments, its episode step counters renamed."""
+    state = model.__dict__
+    if "_episode_timesteps" in state:
+        state["_last_episode_timesteps"] = state.pop("_episode_timesteps")
+    state.pop("_last_original_obs", None)
+    memory = model.rollout_memory
+    if memory and any(isinstance(record, StoredRollout) for record in memory):
+        model.rollout_memory = deque(
+            (record.to_segment() if isinstance(record, StoredRollout) else record for record in memory),
+            maxlen=memory.maxlen,
+        )
 
 
 def _update_statistics(vec_normalize: VecNormalize, raw_obs: np.ndarray, raw_rewards: np.ndarray, dones: np.ndarray) -> None:

@@ -5,7 +5,6 @@ import pytest
 
 from sb3_trpo_plus.baselines import LinearFeatureBaseline
 from sb3_trpo_plus.replay import (
-    RolloutRecorder,
     StoredRollout,
     bootstrap_truncations,
     compute_gae,
@@ -13,6 +12,10 @@ from sb3_trpo_plus.replay import (
     importance_weights,
     recompute_advantages,
 )
+from sb3_trpo_plus.segment import Segment
+
+
+TOY_VALUES = np.array([[0.5], [1.0], [1.5], [2.0]], dtype=np.float32)
 
 
 def _toy_rollout() -> StoredRollout:
@@ -20,9 +23,8 @@ def _toy_rollout() -> StoredRollout:
 
     Observations encode the value the toy value function returns (obs[0] = V(s)).
     """
-    values = np.array([[0.5], [1.0], [1.5], [2.0]], dtype=np.float32)
     return StoredRollout(
-        observations=values[..., None],
+        observations=TOY_VALUES[..., None],
         actions=np.zeros((4, 1, 1), dtype=np.float32),
         log_probs=np.zeros((4, 1), dtype=np.float32),
         rewards=np.array([[1.0], [2.0], [3.0], [4.0]], dtype=np.float32),
@@ -37,6 +39,22 @@ def _toy_rollout() -> StoredRollout:
     )
 
 
+def _toy_segment() -> Segment:
+    """The toy rollout as a collected segment records it."""
+    rewards = np.array([[1.0], [2.0], [3.0], [4.0]], dtype=np.float32)
+    zeros = np.zeros((4, 1), dtype=np.float32)
+    return Segment(
+        observations=TOY_VALUES[..., None], raw_observations=np.concatenate([TOY_VALUES, [[10.0]]])[..., None],
+        last_observation=np.array([[10.0]], dtype=np.float32), actions=np.zeros((4, 1, 1), dtype=np.float32),
+        rewards=rewards, buffer_rewards=rewards, raw_rewards=rewards,
+        episode_starts=np.array([[1.0], [0.0], [1.0], [0.0]], dtype=np.float32),
+        dones=np.array([[False], [True], [False], [True]]), episode_timesteps=np.array([[0], [1], [0], [1], [0]]),
+        values=zeros, log_probs=zeros, last_values=np.zeros(1, dtype=np.float32), ended=[[], [], [], []],
+        truncated_steps=np.array([[1, 0]]), terminal_observations=np.array([[4.0]], dtype=np.float32),
+        terminal_timesteps=np.array([2]),
+    )  # fmt: skip
+
+
 def test_recompute_advantages_hand_computed() -> None:
     # gamma = lambda = 0.5. Truncation at step 1 bootstraps r1 = 2 + 0.5 * V(terminal)=4 -> 4.
     # step 3 (terminates): delta = 4 - 2 = 2                         A3 = 2
@@ -46,13 +64,13 @@ def test_recompute_advantages_hand_computed() -> None:
     def value_fn(obs: np.ndarray, t: np.ndarray) -> np.ndarray:
         return obs[:, 0]
 
-    rollout = _toy_rollout()
-    evaluation = recompute_advantages(rollout, value_fn, gamma=0.5, gae_lambda=0.5)
+    segment = _toy_segment()
+    evaluation = recompute_advantages(segment, value_fn, gamma=0.5, gae_lambda=0.5)
     np.testing.assert_allclose(evaluation.advantages[:, 0], [1.75, 3.0, 3.0, 2.0])
     np.testing.assert_allclose(evaluation.returns[:, 0], [2.25, 4.0, 4.5, 4.0])
     np.testing.assert_allclose(evaluation.values[:, 0], [0.5, 1.0, 1.5, 2.0])
     assert evaluation.observations.shape == (4, 1)
-    assert evaluation.rollout is rollout
+    assert evaluation.segment is segment
 
 
 def test_recompute_uses_current_normalisation() -> None:
@@ -61,7 +79,7 @@ def test_recompute_uses_current_normalisation() -> None:
 
     # value doubles, rewards halve: recomputation must see both
     evaluation = recompute_advantages(
-        _toy_rollout(), value_fn, 0.5, 0.5, normalize_obs=lambda o: 2 * o, normalize_reward=lambda r: r / 2
+        _toy_segment(), value_fn, 0.5, 0.5, normalize_obs=lambda o: 2 * o, normalize_reward=lambda r: r / 2
     )
     np.testing.assert_allclose(evaluation.values[:, 0], [1.0, 2.0, 3.0, 4.0])
     # terminated last step: return = normalised reward only
@@ -114,17 +132,20 @@ def test_effective_sample_size() -> None:
     assert effective_sample_size(np.zeros(3)) == 0.0
 
 
-def test_recorder_builds_rollout() -> None:
-    recorder = RolloutRecorder(n_steps=2, n_envs=2, obs_shape=(3,), obs_dtype=np.dtype(np.float32), action_dim=1)
-    for t in range(2):
-        recorder.add(np.full((2, 3), t), np.array([[t], [t]]), np.zeros(2), np.ones(2), np.zeros(2), np.array([t, t]))
-    recorder.add_truncation(1, np.full(3, 9.0), 2)
-    rollout = recorder.finish(np.zeros((2, 3)), np.array([False, True]), np.array([2, 0]))
-    assert rollout.observations.shape == (2, 2, 3) and rollout.n_samples == 4
-    np.testing.assert_array_equal(rollout.truncated_steps, [[1, 1]])
-    np.testing.assert_array_equal(rollout.terminal_observations, [[9.0, 9.0, 9.0]])
-    with pytest.raises(RuntimeError, match="steps"):
-        RolloutRecorder(3, 1, (1,), np.dtype(np.float32), 1).finish(np.zeros((1, 1)), np.zeros(1), np.zeros(1))
+def test_a_replay_record_of_version_0_1_is_the_same_segment_for_replay() -> None:
+    """Models saved by 0.1.0 hold StoredRollout records; converted, they replay exactly as the segment would."""
+    converted, segment = _toy_rollout().to_segment(), _toy_segment()
+    for name in ("raw_observations", "raw_rewards", "episode_starts", "dones", "episode_timesteps", "actions",
+                 "log_probs", "truncated_steps", "terminal_observations", "terminal_timesteps"):  # fmt: skip
+        np.testing.assert_array_equal(getattr(converted, name), getattr(segment, name), err_msg=name)
+
+    def value_fn(obs: np.ndarray, t: np.ndarray) -> np.ndarray:
+        return obs[:, 0] + t
+
+    a = recompute_advantages(converted, value_fn, gamma=0.9, gae_lambda=0.8)
+    b = recompute_advantages(segment, value_fn, gamma=0.9, gae_lambda=0.8)
+    np.testing.assert_array_equal(a.advantages, b.advantages)
+    np.testing.assert_array_equal(a.returns, b.returns)
 
 
 def test_linear_baseline_features_and_fit() -> None:

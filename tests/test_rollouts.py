@@ -306,16 +306,18 @@ def test_one_worker_collects_what_sb3s_collection_loop_collects(env_id: str) -> 
             _, callback = model._setup_learn(n_steps * n_envs)
             th.manual_seed(pool._torch_seed(0))
             assert model.collect_rollouts(model.env, callback, model.rollout_buffer, n_steps)
-            collected.append((model.rollout_buffer, model._current_rollout))
+            collected.append((model.rollout_buffer, model.rollout_buffer.segment))
     finally:
         pool.close()
         reference.close()
     (buffer_a, record_a), (buffer_b, record_b) = collected
     for name in ("observations", "actions", "rewards", "episode_starts", "values", "log_probs", "advantages", "returns"):
         np.testing.assert_array_equal(getattr(buffer_a, name), getattr(buffer_b, name), err_msg=name)
-    for name in ("observations", "actions", "log_probs", "rewards", "episode_starts", "episode_timesteps", "last_observations",
-                 "last_dones", "last_timesteps", "truncated_steps", "terminal_timesteps"):  # fmt: skip
+    for name in ("observations", "raw_observations", "last_observation", "actions", "rewards", "buffer_rewards",
+                 "raw_rewards", "episode_starts", "dones", "episode_timesteps", "values", "log_probs", "last_values",
+                 "truncated_steps", "terminal_timesteps"):  # fmt: skip
         np.testing.assert_array_equal(getattr(record_a, name), getattr(record_b, name), err_msg=name)
+    assert [[env for env, _ in step] for step in record_a.ended] == [[env for env, _ in step] for step in record_b.ended]
     if env_id == "Reacher2D-v1":
         assert len(record_a.truncated_steps) == n_envs
         np.testing.assert_array_equal(record_a.terminal_observations, record_b.terminal_observations)
