@@ -19,12 +19,18 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-import torch as th
 from stable_baselines3.common.distributions import Distribution
 
 from sb3_trpo_plus import TRPOPlus
 from sb3_trpo_plus.natural_gradient import detached_distribution
-from sb3_trpo_plus.trpo_plus import PolicyBatch, PolicyStep
+from sb3_trpo_plus.update import (
+    PolicyBatch,
+    PolicyStep,
+    natural_gradient_step,
+    no_warm_start,
+    surrogate_advantages,
+    warm_start_from,
+)
 
 
 class MultiStepTRPOPlus(TRPOPlus):
@@ -36,19 +42,25 @@ class MultiStepTRPOPlus(TRPOPlus):
         self.n_policy_steps = n_policy_steps
         super().__init__(*args, **kwargs)
 
-    def _update_policy(self, batch: PolicyBatch) -> PolicyStep:
-        actions = self._action_tensor(batch.actions)
+    def update_policy(self, batch: PolicyBatch) -> PolicyStep:
+        actions = self.action_tensor(batch.actions)
         distribution: Distribution = self.policy.get_distribution(batch.observations)
         anchor = detached_distribution(distribution)  # the rollout's policy: the trust region's centre
-        surrogate = self._step_advantages(batch, distribution.log_prob(actions).detach())
+        surrogate = surrogate_advantages(
+            batch, distribution.log_prob(actions).detach(), self.normalize_advantage, self.replay_is_clip
+        )
         step_kl = self.current_target_kl / self.n_policy_steps
         steps: list[PolicyStep] = []
         moved: np.ndarray | None = None
         for index in range(self.n_policy_steps):
             if index > 0:
                 distribution = self.policy.get_distribution(batch.observations)
-            warm_start = self._warm_start if index == 0 else _no_start
-            step = self._natural_gradient_step(batch, distribution, actions, surrogate, anchor, step_kl, warm_start)
+            first_start = warm_start_from(self.previous_step) if self.cg_warm_start else no_warm_start
+            step = natural_gradient_step(
+                self.policy, self._actor_params, batch, actions, distribution, surrogate, anchor, step_kl=step_kl,
+                max_kl=self.current_target_kl, settings=self.natural_gradient_settings,
+                warm_start=first_start if index == 0 else no_warm_start,
+            )  # fmt: skip
             steps.append(step)
             if step.applied_step is None:
                 break
@@ -66,8 +78,3 @@ class MultiStepTRPOPlus(TRPOPlus):
         # the CG statistics of the last step taken; the warm start of the next update: the whole update's step, as
         # TRPOPlus keeps its one step
         return replace(steps[-1], line_search=line_search, applied_step=moved)
-
-
-def _no_start(gradient: th.Tensor) -> None:
-    """CG from zero (the later steps of an update)."""
-    return None

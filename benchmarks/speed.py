@@ -52,10 +52,7 @@ class PhaseTimer:
         self.fvp = 0
         self._wrap("collect_rollouts", "rollout")
         if isinstance(model, TRPOPlus):
-            self._wrap("_write_linear_baseline_advantages", "recompute")
-            self._wrap("_policy_batch", "recompute")
-            self._wrap("_update_policy", "policy")
-            self._wrap("_update_value_baseline", "critic")
+            self._read_trpo_plus_timings()
         else:
             self._wrap_trpo_train()
             original_hvp = model.hessian_vector_product
@@ -77,6 +74,20 @@ class PhaseTimer:
                 self.times[phase] += time.perf_counter() - start
 
         setattr(self.model, name, timed)
+
+    def _read_trpo_plus_timings(self) -> None:
+        """TRPOPlus logs its update's phases (train/prepare_time, policy_step_time, value_fit_time): read them after
+        each train(), before SB3 writes the logger out."""
+        model, original_train = self.model, self.model.train
+
+        def timed_train() -> None:
+            original_train()
+            logged = model.logger.name_to_value
+            self.times["recompute"] += logged["train/prepare_time"]
+            self.times["policy"] += logged["train/policy_step_time"]
+            self.times["critic"] += logged["train/value_fit_time"]
+
+        model.train = timed_train
 
     def _wrap_trpo_train(self) -> None:
         """sb3-contrib's train(): policy part until the first critic minibatch is requested, critic after."""

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
-import sb3_trpo_plus.trpo_plus as trpo_plus_module
+import sb3_trpo_plus.update as update_module
 from benchmarks.builders import add_run_arguments, algorithm_class, new_model, normalized_training_envs
 from benchmarks.runs import OUT, job_folder
 from benchmarks.study import VARIANTS
@@ -39,7 +39,12 @@ from sb3_trpo_plus.natural_gradient import ConjugateGradientResult, conjugate_gr
 
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = ("start_gradient_cosine", "start_share", "solution_cosine", "objective_gain")
-_cosine = trpo_plus_module._cosine  # the cosine TRPOPlus logs (train/cg_warm_start_cosine)
+
+
+def _cosine(a: th.Tensor, b: th.Tensor) -> float:
+    """The cosine TRPOPlus logs (train/cg_warm_start_cosine)."""
+    denominator = float(th.linalg.vector_norm(a) * th.linalg.vector_norm(b))
+    return float(th.dot(a, b)) / denominator if denominator > 0 else 0.0
 
 
 def compare_starts(
@@ -88,7 +93,7 @@ def measure(env_id: str, variant: str, seed: int, steps: int, from_run: bool, ra
     model = _model(env_id, variant, seed, from_run)
     model.cg_warm_start, model.cg_warm_start_rescale = True, not raw
     rows: list[dict[str, float]] = []
-    solve = trpo_plus_module.conjugate_gradient
+    solve = update_module.conjugate_gradient  # the solver natural_gradient_step calls
 
     def solve_and_compare(fvp: Any, b: th.Tensor, x0: th.Tensor | None = None, **kwargs: Any) -> Any:
         result = solve(fvp, b, x0, **kwargs)
@@ -96,11 +101,11 @@ def measure(env_id: str, variant: str, seed: int, steps: int, from_run: bool, ra
             rows.append(compare_starts(fvp, b, x0, result, kwargs["max_iter"], not raw))  # TRPOPlus passes cg_max_steps
         return result
 
-    trpo_plus_module.conjugate_gradient = solve_and_compare  # type: ignore[assignment]
+    update_module.conjugate_gradient = solve_and_compare  # type: ignore[assignment]
     try:
         model.learn(steps, reset_num_timesteps=not from_run)
     finally:
-        trpo_plus_module.conjugate_gradient = solve
+        update_module.conjugate_gradient = solve
         model.get_env().close()
     return {
         "env": env_id, "variant": variant, "seed": seed, "from_run": from_run, "raw": raw, "steps": steps,

@@ -12,7 +12,7 @@ import tempfile
 import time
 import warnings
 from collections import deque
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
@@ -22,7 +22,6 @@ from gymnasium import spaces
 from sb3_contrib import TRPO
 from stable_baselines3.common.buffers import DictRolloutBuffer, RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.distributions import Distribution, kl_divergence
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import FloatSchedule, explained_variance
@@ -32,19 +31,10 @@ from torch.nn import functional as F
 
 from sb3_trpo_plus.arguments import Rule, boolean, integer, number, optional
 from sb3_trpo_plus.baselines import LinearFeatureBaseline
-from sb3_trpo_plus.natural_gradient import (
-    LineSearchResult,
-    backtracking_line_search,
-    conjugate_gradient,
-    detached_distribution,
-    fisher_vector_product,
-    flat_gradient,
-)
+from sb3_trpo_plus.natural_gradient import detached_distribution
 from sb3_trpo_plus.replay import (
     RolloutEvaluation,
     StoredRollout,
-    effective_sample_size,
-    importance_weights,
     recompute_advantages,
 )
 from sb3_trpo_plus.rollouts import RolloutWorkers, buried_rollout_workers, rollout_workers
@@ -56,6 +46,15 @@ from sb3_trpo_plus.segment import (
     SegmentRolloutBuffer,
     StepLocals,
     collect_segment,
+)
+from sb3_trpo_plus.update import (
+    NaturalGradientSettings,
+    PolicyBatch,
+    PolicyStep,
+    natural_gradient_step,
+    no_warm_start,
+    surrogate_advantages,
+    warm_start_from,
 )
 
 SelfTRPOPlus = TypeVar("SelfTRPOPlus", bound="TRPOPlus")
@@ -179,59 +178,13 @@ def _float_or_schedule(value: float | Schedule) -> float | Schedule:
 
 # ---------------------------------------------------------------------- records of one update
 @dataclass(frozen=True)
-class PolicyBatch:
-    """Samples of one policy update: the current rollout (``n_current`` samples) followed by the replayed ones."""
+class UpdateTimings:
+    """Seconds of an update's phases: advantages and the batch (``prepare``: the linear baseline, the replayed
+    segments evaluated again), the policy step, the value baseline's fit (and the memory)."""
 
-    observations: th.Tensor
-    actions: th.Tensor
-    sampling_log_prob: th.Tensor
-    advantages: th.Tensor
-    n_current: int
-
-    @property
-    def n_replayed(self) -> int:
-        return len(self.advantages) - self.n_current
-
-
-@dataclass(frozen=True)
-class SurrogateAdvantages:
-    """The batch's advantages as the surrogate weighs them (normalised, replayed ones truncated).
-
-    :param advantages: one per sample of the batch
-    :param replay_ess: effective sample size of the importance weights, a fraction of the batch (1: on-policy)
-    """
-
-    advantages: th.Tensor
-    replay_ess: float
-
-
-@dataclass(frozen=True)
-class PolicyStep:
-    """One natural-gradient step: its line search, the parameter change it made, and its CG diagnostics.
-
-    :param line_search: outcome of the line search
-    :param applied_step: the change of the actor parameters (flat), None when the line search rejected the step;
-        the next update's CG warm start
-    :param objective_before: surrogate objective before the step
-    :param cg_iterations: CG iterations
-    :param cg_residual: CG's final residual norm
-    :param cg_relative_residual: the residual norm over the gradient's
-    :param step_gradient_cosine: cosine between the CG solution and the gradient
-    :param fisher_vector_products: Fisher-vector products, the warm start's and the step scaling's included
-    :param cg_warm_start_cosine: cosine between CG's start and its solution (0 without a warm start)
-    :param replay_ess: the replayed samples' effective sample size (:class:`SurrogateAdvantages`)
-    """
-
-    line_search: LineSearchResult
-    applied_step: np.ndarray | None
-    objective_before: float
-    cg_iterations: int
-    cg_residual: float
-    cg_relative_residual: float
-    step_gradient_cosine: float
-    fisher_vector_products: int
-    cg_warm_start_cosine: float
-    replay_ess: float
+    prepare: float
+    policy: float
+    value: float
 
 
 @dataclass(frozen=True)
@@ -589,14 +542,18 @@ class TRPOPlus(TRPO):
         # Re-evaluate the stored rollouts once: the value function does not change before the critic fit
         replayed = self._reevaluate_memory()
         batch = self._policy_batch(replayed)
-        policy_step = self._update_policy(batch)
+        prepared = time.perf_counter()
+        policy_step = self.update_policy(batch)
         self.previous_step = policy_step.applied_step  # the next update's CG warm start
+        stepped = time.perf_counter()
         value_fit = self._update_value_baseline(segment, replayed)
         if self.replay_memory > 0:
             assert self.rollout_memory is not None
             self.rollout_memory.append(segment)
         self._n_updates += 1
-        self._log_update(batch, policy_step, value_fit, time.perf_counter() - start)
+        end = time.perf_counter()
+        timings = UpdateTimings(prepare=prepared - start, policy=stepped - prepared, value=end - stepped)
+        self._log_update(batch, policy_step, value_fit, timings)
 
     def _update_target_kl(self) -> None:
         """This update's trust-region radius, ``target_kl`` at the remaining progress (constant unless a schedule)."""
@@ -675,100 +632,37 @@ class TRPOPlus(TRPO):
             n_current=n_current,
         )
 
-    def _action_tensor(self, actions: th.Tensor) -> th.Tensor:
+    def action_tensor(self, actions: th.Tensor) -> th.Tensor:
+        """The batch's actions as the policy's distribution takes them (indices for a ``Discrete`` space)."""
         return actions.long().flatten() if isinstance(self.action_space, spaces.Discrete) else actions
 
-    def _update_policy(self, batch: PolicyBatch) -> PolicyStep:
-        """Natural-gradient step within the trust region (gradient, CG, step scaling, line search)."""
-        actions = self._action_tensor(batch.actions)
+    def update_policy(self, batch: PolicyBatch) -> PolicyStep:
+        """The update's policy step: one natural-gradient step inside the trust region of radius
+        ``current_target_kl`` (:func:`~sb3_trpo_plus.update.natural_gradient_step`), CG warm-started from the previous
+        update's step with ``cg_warm_start``. A subclass that changes the policy step overrides this method and calls
+        the public functions of :mod:`sb3_trpo_plus.update`."""
+        actions = self.action_tensor(batch.actions)
         distribution = self.policy.get_distribution(batch.observations)
         # Anchor of the KL constraint and of the Fisher matrix: the current policy on all states
         anchor = detached_distribution(distribution)
-        surrogate = self._step_advantages(batch, distribution.log_prob(actions).detach())
-        return self._natural_gradient_step(
-            batch, distribution, actions, surrogate, anchor, self.current_target_kl, self._warm_start
+        surrogate = surrogate_advantages(
+            batch, distribution.log_prob(actions).detach(), self.normalize_advantage, self.replay_is_clip
         )
-
-    def _step_advantages(self, batch: PolicyBatch, log_prob: th.Tensor) -> SurrogateAdvantages:
-        """The batch's advantages as the surrogate weighs them: normalised, replayed ones' weights truncated.
-
-        ``log_prob`` is the current policy's; the replayed samples' weights ``pi_current / q`` are truncated at
-        ``replay_is_clip`` by a constant factor. The current rollout is on-policy by construction (weight 1).
-        """
-        advantages = batch.advantages
-        if self.normalize_advantage:
-            advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
-        if batch.n_replayed == 0:
-            return SurrogateAdvantages(advantages=advantages, replay_ess=1.0)
-        rho, scale = importance_weights(log_prob.cpu().numpy(), batch.sampling_log_prob.cpu().numpy(), self.replay_is_clip)
-        rho[: batch.n_current], scale[: batch.n_current] = 1.0, 1.0
-        return SurrogateAdvantages(
-            advantages=advantages * th.as_tensor(scale, dtype=th.float32, device=self.device),
-            replay_ess=effective_sample_size(rho * scale) / len(rho),
-        )
-
-    def _natural_gradient_step(
-        self,
-        batch: PolicyBatch,
-        distribution: Distribution,
-        actions: th.Tensor,
-        surrogate: SurrogateAdvantages,
-        anchor: Distribution,
-        step_kl: float,
-        warm_start: Callable[[th.Tensor], th.Tensor | None],
-    ) -> PolicyStep:
-        """One natural-gradient step from the current parameters.
-
-        Gradient of the importance-weighted surrogate and Fisher matrix at ``distribution`` (the policy at the
-        current parameters, with its graph), CG started from ``warm_start(gradient)``, a full step of quadratic
-        KL ``step_kl``, and a line search that keeps the KL to ``anchor`` within ``current_target_kl``.
-        """
-        advantages = surrogate.advantages
-        log_prob = distribution.log_prob(actions)
-        objective = (advantages * th.exp(log_prob - batch.sampling_log_prob)).mean()
-        gradient = flat_gradient(objective, self._actor_params, retain_graph=self.fisher_sub_sampling == 1)
-        fisher_distribution = distribution
-        if self.fisher_sub_sampling > 1:
-            fisher_distribution = self.policy.get_distribution(batch.observations[:: self.fisher_sub_sampling])
-        fvp = fisher_vector_product(fisher_distribution, self._actor_params, damping=self.cg_damping)
-
-        start = warm_start(gradient)
-        cg = conjugate_gradient(
-            fvp, gradient, x0=start, max_iter=self.cg_max_steps, warm_start_rescale=self.cg_warm_start_rescale
-        )
-        direction = cg.solution
-        quadratic_form = cg.quadratic_form if cg.quadratic_form > 0 else float(th.dot(direction, fvp(direction)))
-        full_step = math.sqrt(2.0 * step_kl / quadratic_form) * direction if quadratic_form > 0 else direction * math.nan
-
-        def evaluate() -> tuple[float, float]:
-            new_distribution = self.policy.get_distribution(batch.observations)
-            new_log_prob = new_distribution.log_prob(actions)
-            new_objective = (advantages * th.exp(new_log_prob - batch.sampling_log_prob)).mean()
-            kl = kl_divergence(new_distribution, anchor).mean()
-            return float(new_objective), float(kl)
-
-        result = backtracking_line_search(
-            self._actor_params, full_step, evaluate, float(objective.detach()), self.current_target_kl,
-            self.line_search_shrinking_factor, self.line_search_max_iter,
+        return natural_gradient_step(
+            self.policy, self._actor_params, batch, actions, distribution, surrogate, anchor,
+            step_kl=self.current_target_kl, max_kl=self.current_target_kl, settings=self.natural_gradient_settings,
+            warm_start=warm_start_from(self.previous_step) if self.cg_warm_start else no_warm_start,
         )  # fmt: skip
-        return PolicyStep(
-            line_search=result,
-            applied_step=(result.coefficient * full_step).cpu().numpy() if result.accepted else None,
-            objective_before=float(objective.detach()),
-            cg_iterations=cg.iterations,
-            cg_residual=cg.residual_norm,
-            cg_relative_residual=cg.residual_norm / max(float(th.linalg.vector_norm(gradient)), 1e-12),
-            step_gradient_cosine=_cosine(gradient, direction),
-            fisher_vector_products=cg.matvecs + (0 if cg.quadratic_form > 0 else 1),
-            cg_warm_start_cosine=_cosine(start, direction) if start is not None else 0.0,
-            replay_ess=surrogate.replay_ess,
-        )
 
-    def _warm_start(self, gradient: th.Tensor) -> th.Tensor | None:
-        """Previous full step (thesis 5.3.2), or None at the first update / after a rejected line search."""
-        if not self.cg_warm_start or self.previous_step is None or self.previous_step.shape != gradient.shape:
-            return None
-        return th.as_tensor(self.previous_step, dtype=gradient.dtype, device=gradient.device)
+    @property
+    def natural_gradient_settings(self) -> NaturalGradientSettings:
+        """This model's CG and line-search hyperparameters, as :func:`~sb3_trpo_plus.update.natural_gradient_step`
+        takes them."""
+        return NaturalGradientSettings(
+            cg_max_steps=self.cg_max_steps, cg_damping=self.cg_damping, cg_warm_start_rescale=self.cg_warm_start_rescale,
+            fisher_sub_sampling=self.fisher_sub_sampling, line_search_shrinking_factor=self.line_search_shrinking_factor,
+            line_search_max_iter=self.line_search_max_iter,
+        )  # fmt: skip
 
     def _update_value_baseline(self, segment: Segment, replayed: Sequence[RolloutEvaluation]) -> ValueFit:
         """Fit the critic (Adam epochs) or refit the linear baseline; ``replayed`` only with ``replay_critic``."""
@@ -837,7 +731,7 @@ class TRPOPlus(TRPO):
         self.linear_baseline.fit(obs, timesteps, returns)
         return float(np.mean((self.linear_baseline.predict(obs, timesteps) - returns) ** 2))
 
-    def _log_update(self, batch: PolicyBatch, step: PolicyStep, value_fit: ValueFit, seconds: float) -> None:
+    def _log_update(self, batch: PolicyBatch, step: PolicyStep, value_fit: ValueFit, timings: UpdateTimings) -> None:
         line_search = step.line_search
         record = self.logger.record
         record("train/policy_objective", line_search.objective if line_search.accepted else step.objective_before)
@@ -864,7 +758,10 @@ class TRPOPlus(TRPO):
         record("train/replay_samples", batch.n_replayed)
         record("train/replay_ess", step.replay_ess)
         record("train/critic_skipped_steps", value_fit.skipped_steps)
-        record("train/update_time", seconds)
+        record("train/update_time", timings.prepare + timings.policy + timings.value)
+        record("train/prepare_time", timings.prepare)
+        record("train/policy_step_time", timings.policy)
+        record("train/value_fit_time", timings.value)
 
     # ------------------------------------------------------------------ learn / save / load
     def learn(
@@ -1002,8 +899,3 @@ def _update_statistics(vec_normalize: VecNormalize, raw_obs: np.ndarray, raw_rew
             vec_normalize.obs_rms.update(raw_obs)  # type: ignore[union-attr]
         vec_normalize._update_reward(raw_rewards)
     vec_normalize.returns[dones] = 0
-
-
-def _cosine(a: th.Tensor, b: th.Tensor) -> float:
-    denominator = float(th.linalg.vector_norm(a) * th.linalg.vector_norm(b))
-    return float(th.dot(a, b)) / denominator if denominator > 0 else 0.0

@@ -33,7 +33,7 @@ def test_one_step_is_trpo_plus(variant: dict) -> None:
 
 def test_several_steps_stay_in_the_trust_region() -> None:
     model = _make(MultiStepTRPOPlus, dict(cg_warm_start=True), n_policy_steps=3)
-    update = model._update_policy
+    update = model.update_policy
     kls: list[float] = []
     steps: list[float] = []
 
@@ -46,7 +46,7 @@ def test_several_steps_stay_in_the_trust_region() -> None:
         assert result.line_search.kl == pytest.approx(kls[-1], rel=1e-5)  # the logged KL is the whole update's
         return result
 
-    model._update_policy = measured  # type: ignore[method-assign]
+    model.update_policy = measured  # type: ignore[method-assign]
     model.learn(6 * 128)
     assert len(kls) == 6
     assert max(kls) <= model.target_kl * (1 + 1e-6)

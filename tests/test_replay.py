@@ -14,7 +14,6 @@ from sb3_trpo_plus.replay import (
 )
 from sb3_trpo_plus.segment import Segment
 
-
 TOY_VALUES = np.array([[0.5], [1.0], [1.5], [2.0]], dtype=np.float32)
 
 

@@ -16,7 +16,9 @@ from sb3_trpo_plus.segment import LoopState, Normalizer, Segment, SegmentRollout
 
 def _pendulum(n_envs: int = 2, max_episode_steps: int = 15) -> VecNormalize:
     """Pendulum with a short time limit (truncations in every segment), normalised."""
-    return VecNormalize(make_vec_env("Pendulum-v1", n_envs=n_envs, seed=3, env_kwargs={"max_episode_steps": max_episode_steps}))
+    return VecNormalize(
+        make_vec_env("Pendulum-v1", n_envs=n_envs, seed=3, env_kwargs={"max_episode_steps": max_episode_steps})
+    )
 
 
 def _policy(env) -> th.nn.Module:

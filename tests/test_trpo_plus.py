@@ -14,6 +14,7 @@ from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
 from sb3_trpo_plus import TRPOPlus
+from sb3_trpo_plus.update import surrogate_advantages
 
 TINY = dict(n_steps=64, batch_size=64, n_critic_updates=2, cg_max_steps=5, policy_kwargs=dict(net_arch=[16]))
 
@@ -224,9 +225,8 @@ def test_replay_is_clip_truncates_the_replayed_samples_weights() -> None:
     batch = model._policy_batch(model._reevaluate_memory())
     assert batch.n_current == 64 and batch.n_replayed == 64
     log_prob = model.policy.get_distribution(batch.observations).log_prob(batch.actions).detach()
-    clipped = model._step_advantages(batch, log_prob)
-    model.replay_is_clip = None
-    unclipped = model._step_advantages(batch, log_prob)
+    clipped = surrogate_advantages(batch, log_prob, normalize=True, replay_is_clip=clip)
+    unclipped = surrogate_advantages(batch, log_prob, normalize=True, replay_is_clip=None)
     rho = th.exp(log_prob - batch.sampling_log_prob)[64:]
     assert bool((rho > clip).any()), "no weight above the clip: the test would prove nothing"
     th.testing.assert_close(clipped.advantages[:64], unclipped.advantages[:64])

@@ -1,0 +1,215 @@
+"""One TRPO policy update as public functions: the surrogate's advantages and the natural-gradient step.
+
+``TRPOPlus.update_policy`` is these two calls; a variant of the update (several steps per batch, another trust
+region) calls them itself rather than reaching into the algorithm's private methods. The numerics they combine
+(Fisher-vector products, conjugate gradient, the line search) are in :mod:`sb3_trpo_plus.natural_gradient`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.distributions import Distribution, kl_divergence
+from stable_baselines3.common.policies import ActorCriticPolicy
+from torch import nn
+
+from sb3_trpo_plus.natural_gradient import (
+    LineSearchResult,
+    backtracking_line_search,
+    conjugate_gradient,
+    fisher_vector_product,
+    flat_gradient,
+)
+from sb3_trpo_plus.replay import effective_sample_size, importance_weights
+
+
+# ---------------------------------------------------------------------------------------------------- records
+@dataclass(frozen=True)
+class PolicyBatch:
+    """Samples of one policy update: the current rollout (``n_current`` samples) followed by the replayed ones."""
+
+    observations: th.Tensor
+    actions: th.Tensor
+    sampling_log_prob: th.Tensor
+    advantages: th.Tensor
+    n_current: int
+
+    @property
+    def n_replayed(self) -> int:
+        return len(self.advantages) - self.n_current
+
+
+@dataclass(frozen=True)
+class SurrogateAdvantages:
+    """The batch's advantages as the surrogate weighs them (normalised, replayed ones truncated).
+
+    :param advantages: one per sample of the batch
+    :param replay_ess: effective sample size of the importance weights, a fraction of the batch (1: on-policy)
+    """
+
+    advantages: th.Tensor
+    replay_ess: float
+
+
+@dataclass(frozen=True)
+class PolicyStep:
+    """One natural-gradient step: its line search, the parameter change it made, and its CG diagnostics.
+
+    :param line_search: outcome of the line search
+    :param applied_step: the change of the actor parameters (flat), None when the line search rejected the step;
+        the next update's CG warm start
+    :param objective_before: surrogate objective before the step
+    :param cg_iterations: CG iterations
+    :param cg_residual: CG's final residual norm
+    :param cg_relative_residual: the residual norm over the gradient's
+    :param step_gradient_cosine: cosine between the CG solution and the gradient
+    :param fisher_vector_products: Fisher-vector products, the warm start's and the step scaling's included
+    :param cg_warm_start_cosine: cosine between CG's start and its solution (0 without a warm start)
+    :param replay_ess: the replayed samples' effective sample size (:class:`SurrogateAdvantages`)
+    """
+
+    line_search: LineSearchResult
+    applied_step: np.ndarray | None
+    objective_before: float
+    cg_iterations: int
+    cg_residual: float
+    cg_relative_residual: float
+    step_gradient_cosine: float
+    fisher_vector_products: int
+    cg_warm_start_cosine: float
+    replay_ess: float
+
+
+@dataclass(frozen=True)
+class NaturalGradientSettings:
+    """How a natural-gradient step is solved and searched (TRPOPlus' hyperparameters of the same names).
+
+    :param cg_max_steps: conjugate-gradient iterations
+    :param cg_damping: damping added to the Fisher matrix
+    :param cg_warm_start_rescale: rescale a warm start to its exact line minimiser
+    :param fisher_sub_sampling: estimate the Fisher products on every n-th sample
+    :param line_search_shrinking_factor: backtracking factor
+    :param line_search_max_iter: line-search trials
+    """
+
+    cg_max_steps: int
+    cg_damping: float
+    cg_warm_start_rescale: bool = True
+    fisher_sub_sampling: int = 1
+    line_search_shrinking_factor: float = 0.8
+    line_search_max_iter: int = 10
+
+
+# ---------------------------------------------------------------------------------------------------- functions
+def surrogate_advantages(
+    batch: PolicyBatch, log_prob: th.Tensor, normalize: bool, replay_is_clip: float | None
+) -> SurrogateAdvantages:
+    """The batch's advantages as the surrogate weighs them: normalised over the batch (``normalize``), the replayed
+    samples' importance weights ``pi_current / q`` truncated at ``replay_is_clip`` by a constant factor.
+
+    ``log_prob`` is the current policy's; the current rollout is on-policy by construction (weight 1).
+    """
+    advantages = batch.advantages
+    if normalize:
+        advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+    if batch.n_replayed == 0:
+        return SurrogateAdvantages(advantages=advantages, replay_ess=1.0)
+    rho, scale = importance_weights(log_prob.cpu().numpy(), batch.sampling_log_prob.cpu().numpy(), replay_is_clip)
+    rho[: batch.n_current], scale[: batch.n_current] = 1.0, 1.0
+    return SurrogateAdvantages(
+        advantages=advantages * th.as_tensor(scale, dtype=th.float32, device=advantages.device),
+        replay_ess=effective_sample_size(rho * scale) / len(rho),
+    )
+
+
+def warm_start_from(previous_step: np.ndarray | None) -> Callable[[th.Tensor], th.Tensor | None]:
+    """CG's start from the previous update's step (thesis 5.3.2): a function of the gradient, None where there is no
+    previous step (the first update, after a rejected line search) or it does not fit the gradient."""
+
+    def start(gradient: th.Tensor) -> th.Tensor | None:
+        if previous_step is None or previous_step.shape != gradient.shape:
+            return None
+        return th.as_tensor(previous_step, dtype=gradient.dtype, device=gradient.device)
+
+    return start
+
+
+def no_warm_start(gradient: th.Tensor) -> None:
+    """CG from zero."""
+    return None
+
+
+def natural_gradient_step(
+    policy: ActorCriticPolicy,
+    actor_params: Sequence[nn.Parameter],
+    batch: PolicyBatch,
+    actions: th.Tensor,
+    distribution: Distribution,
+    surrogate: SurrogateAdvantages,
+    anchor: Distribution,
+    *,
+    step_kl: float,
+    max_kl: float,
+    settings: NaturalGradientSettings,
+    warm_start: Callable[[th.Tensor], th.Tensor | None] = no_warm_start,
+) -> PolicyStep:
+    """One natural-gradient step of ``actor_params`` from where they are (they are changed in place).
+
+    Gradient of the importance-weighted surrogate ``mean(A * pi / q)`` and Fisher matrix at ``distribution`` (the
+    policy at the current parameters, with its graph), CG started from ``warm_start(gradient)``, a full step of
+    quadratic KL ``step_kl``, and a backtracking line search that accepts the first trial improving the surrogate
+    with a mean KL to ``anchor`` within ``max_kl``.
+
+    :param policy: the policy whose ``get_distribution`` evaluates the trials
+    :param actor_params: the parameters the step changes
+    :param actions: the batch's actions as the distribution takes them
+    """
+    advantages = surrogate.advantages
+    log_prob = distribution.log_prob(actions)
+    objective = (advantages * th.exp(log_prob - batch.sampling_log_prob)).mean()
+    gradient = flat_gradient(objective, actor_params, retain_graph=settings.fisher_sub_sampling == 1)
+    fisher_distribution = distribution
+    if settings.fisher_sub_sampling > 1:
+        fisher_distribution = policy.get_distribution(batch.observations[:: settings.fisher_sub_sampling])
+    fvp = fisher_vector_product(fisher_distribution, actor_params, damping=settings.cg_damping)
+
+    start = warm_start(gradient)
+    cg = conjugate_gradient(
+        fvp, gradient, x0=start, max_iter=settings.cg_max_steps, warm_start_rescale=settings.cg_warm_start_rescale
+    )
+    direction = cg.solution
+    quadratic_form = cg.quadratic_form if cg.quadratic_form > 0 else float(th.dot(direction, fvp(direction)))
+    full_step = math.sqrt(2.0 * step_kl / quadratic_form) * direction if quadratic_form > 0 else direction * math.nan
+
+    def evaluate() -> tuple[float, float]:
+        new_distribution = policy.get_distribution(batch.observations)
+        new_log_prob = new_distribution.log_prob(actions)
+        new_objective = (advantages * th.exp(new_log_prob - batch.sampling_log_prob)).mean()
+        kl = kl_divergence(new_distribution, anchor).mean()
+        return float(new_objective), float(kl)
+
+    result = backtracking_line_search(
+        actor_params, full_step, evaluate, float(objective.detach()), max_kl,
+        settings.line_search_shrinking_factor, settings.line_search_max_iter,
+    )  # fmt: skip
+    return PolicyStep(
+        line_search=result,
+        applied_step=(result.coefficient * full_step).cpu().numpy() if result.accepted else None,
+        objective_before=float(objective.detach()),
+        cg_iterations=cg.iterations,
+        cg_residual=cg.residual_norm,
+        cg_relative_residual=cg.residual_norm / max(float(th.linalg.vector_norm(gradient)), 1e-12),
+        step_gradient_cosine=_cosine(gradient, direction),
+        fisher_vector_products=cg.matvecs + (0 if cg.quadratic_form > 0 else 1),
+        cg_warm_start_cosine=_cosine(start, direction) if start is not None else 0.0,
+        replay_ess=surrogate.replay_ess,
+    )
+
+
+def _cosine(a: th.Tensor, b: th.Tensor) -> float:
+    denominator = float(th.linalg.vector_norm(a) * th.linalg.vector_norm(b))
+    return float(th.dot(a, b)) / denominator if denominator > 0 else 0.0
