@@ -29,7 +29,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from grasp_envs import make_batch_env
 from grasp_envs.batch import BatchVecEnv
 from grasp_envs.wrappers import ScriptedStarts
-from sb3_trpo_plus import TRPOPlus, rollouts
+from sb3_trpo_plus import TRPOPlus
 from sb3_trpo_plus.rollouts import (
     InProcessRollouts,
     ProcessRollouts,
@@ -37,9 +37,11 @@ from sb3_trpo_plus.rollouts import (
     RolloutWorker,
     RolloutWorkers,
     WorkerEnvs,
+    backends,
     buried_rollout_workers,
     rollout_workers,
 )
+from sb3_trpo_plus.segment import SegmentDictRolloutBuffer, SegmentRolloutBuffer
 from sb3_trpo_plus.trpo_plus import HYPERPARAMETER_RULES, validate_hyperparameters
 from sb3_trpo_plus.vec_env import ShardedSubprocVecEnv
 
@@ -73,7 +75,11 @@ TABLE: dict[str, Row] = {
     "gae_lambda": Row([0.0, 0.95, 1], [-0.1, 1.01, *NOT_NUMBER]),
     "use_sde": Row([False, True], NOT_BOOL),
     "sde_sample_freq": Row([-1, 0, 4], [-2, *NOT_INT]),
-    "rollout_buffer_class": Row([None, RolloutBuffer, DictRolloutBuffer], [ReplayBuffer, "RolloutBuffer", 1]),
+    # TRPOPlus fills its buffer from collected segments: SB3's own buffers cannot hold one
+    "rollout_buffer_class": Row(
+        [None, SegmentRolloutBuffer, SegmentDictRolloutBuffer],
+        [ReplayBuffer, RolloutBuffer, DictRolloutBuffer, "RolloutBuffer", 1],
+    ),
     "rollout_buffer_kwargs": Row([None, {}, {"gamma": 0.9}], [[], "gamma=0.9", 1]),
     "normalize_advantage": Row([True, False], NOT_BOOL),
     "target_kl": Row([0.01, 1, _schedule], [0.0, -0.01, "lin_0.01", *NOT_NUMBER]),
@@ -311,7 +317,7 @@ def in_tmp_path(monkeypatch: pytest.MonkeyPatch, tmp_path: pathlib.Path) -> None
 def pools_in_process(monkeypatch: pytest.MonkeyPatch) -> None:
     """Every pool's workers run in this process (no worker processes, no Ray): the values reach them fast."""
     for pool in (ProcessRollouts, RayRollouts):
-        monkeypatch.setattr(pool, "_make_backend", lambda self: rollouts._InProcessBackend())
+        monkeypatch.setattr(pool, "_make_backend", lambda self: backends._InProcessBackend())
 
 
 @pytest.fixture
