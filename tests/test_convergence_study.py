@@ -492,12 +492,12 @@ def test_warm_start_share_against_hand_computed_cg() -> None:
 
 def test_warm_start_share_measures_every_warm_started_update_and_restores_the_solver() -> None:
     """Three updates of the plain variant with the warm start switched on: the last two are warm-started."""
-    import sb3_trpo_plus.trpo_plus as trpo_plus_module
+    import sb3_trpo_plus.update as update_module
     from benchmarks import warm_start_share
 
-    solver = trpo_plus_module.conjugate_gradient
+    solver = update_module.conjugate_gradient
     result = warm_start_share.measure("Reacher2D-v1", "plain", seed=0, steps=3 * 2048, from_run=False, raw=False)
-    assert trpo_plus_module.conjugate_gradient is solver
+    assert update_module.conjugate_gradient is solver
     assert len(result["updates"]) == 2
     for row in result["updates"]:
         assert -1.0 <= row["solution_cosine"] <= 1.0 + 1e-6 and row["start_share"] >= 0.0
