@@ -42,14 +42,15 @@ class MultiStepTRPOPlus(TRPOPlus):
         self.n_policy_steps = n_policy_steps
         super().__init__(*args, **kwargs)
 
-    def update_policy(self, batch: PolicyBatch) -> PolicyStep:
+    def update_policy(self, batch: PolicyBatch, radius: float | None = None) -> PolicyStep:
+        radius = self.current_target_kl if radius is None else radius
         actions = self.action_tensor(batch.actions)
         distribution: Distribution = self.policy.get_distribution(batch.observations)
         anchor = detached_distribution(distribution)  # the rollout's policy: the trust region's centre
         surrogate = surrogate_advantages(
             batch, distribution.log_prob(actions).detach(), self.normalize_advantage, self.replay_is_clip
         )
-        step_kl = self.current_target_kl / self.n_policy_steps
+        step_kl = radius / self.n_policy_steps
         steps: list[PolicyStep] = []
         moved: np.ndarray | None = None
         for index in range(self.n_policy_steps):
@@ -58,7 +59,7 @@ class MultiStepTRPOPlus(TRPOPlus):
             first_start = warm_start_from(self.previous_step) if self.cg_warm_start else no_warm_start
             step = natural_gradient_step(
                 self.policy, self._actor_params, batch, actions, distribution, surrogate, anchor, step_kl=step_kl,
-                max_kl=self.current_target_kl, settings=self.natural_gradient_settings,
+                max_kl=radius, settings=self.natural_gradient_settings,
                 warm_start=first_start if index == 0 else no_warm_start,
             )  # fmt: skip
             steps.append(step)

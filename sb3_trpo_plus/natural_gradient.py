@@ -202,7 +202,7 @@ def _distribution_parameters(distribution: Distribution) -> tuple[th.Tensor, Cal
 
 
 def fisher_vector_product(
-    distribution: Distribution, params: Sequence[th.Tensor], damping: float = 0.0
+    distribution: Distribution, params: Sequence[th.Tensor], damping: float = 0.0, sample_weights: th.Tensor | None = None
 ) -> FisherVectorProduct:
     """Return ``v -> (F + damping I) v`` for the mean-KL Fisher matrix of ``distribution`` w.r.t. ``params``.
 
@@ -212,7 +212,8 @@ def fisher_vector_product(
     obtained with the double-vjp trick on a graph built once, so every product costs two linear
     backward passes and never differentiates the KL twice.
 
-    The distribution must have been computed with gradients enabled from ``params``.
+    The distribution must have been computed with gradients enabled from ``params``. With ``sample_weights`` (one
+    per sample, mean 1 for a weighted mean), the Fisher matrix of the weighted mean KL.
     """
     outputs, metric = _distribution_parameters(distribution)
     params = list(params)
@@ -227,7 +228,10 @@ def fisher_vector_product(
         pieces = th.split(vector, sizes)
         used_vector = th.cat([piece for piece, u in zip(pieces, used, strict=True) if u])
         (jacobian_vector,) = th.autograd.grad(jt_dummy, dummy, used_vector, retain_graph=True)
-        grads = th.autograd.grad(outputs, params, metric(jacobian_vector), retain_graph=True, allow_unused=True)
+        metric_vector = metric(jacobian_vector)
+        if sample_weights is not None:
+            metric_vector = metric_vector * sample_weights.reshape(-1, 1)
+        grads = th.autograd.grad(outputs, params, metric_vector, retain_graph=True, allow_unused=True)
         flat = th.cat([(th.zeros_like(p) if g is None else g).reshape(-1) for g, p in zip(grads, params, strict=True)])
         return flat + damping * vector if damping else flat
 

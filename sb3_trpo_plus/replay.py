@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_trpo_plus.reuse import vtrace_gae
 from sb3_trpo_plus.segment import Segment
 
 ValueFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -125,6 +126,7 @@ def recompute_advantages(
     gae_lambda: float,
     normalize_obs: Callable[[np.ndarray], np.ndarray] | None = None,
     normalize_reward: Callable[[np.ndarray], np.ndarray] | None = None,
+    trace_ratios: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> RolloutEvaluation:
     """Evaluate a stored segment again with the current value function and statistics.
 
@@ -132,6 +134,8 @@ def recompute_advantages(
     :param value_fn: current value function on flat (normalised) observations and episode timesteps
     :param normalize_obs: current observation normalisation (``VecNormalize.normalize_obs``), if any
     :param normalize_reward: current reward normalisation (``VecNormalize.normalize_reward``), if any
+    :param trace_ratios: the truncated importance ratios ``c_t`` (``[step, env]``) from the flat normalised
+        observations: off-policy GAE (:func:`~sb3_trpo_plus.reuse.vtrace_gae`) instead of on-policy GAE
     :return: the segment's normalised observations, values, advantages and returns
     """
     n_steps, n_envs = segment.raw_rewards.shape
@@ -157,9 +161,13 @@ def recompute_advantages(
     terminal_values = all_values[n_steps * n_envs + n_envs :]
     rewards = (normalize_reward or identity)(segment.raw_rewards).astype(np.float32)
     rewards = bootstrap_truncations(rewards, segment.truncated_steps, terminal_values, gamma)
-    advantages, returns = compute_gae(
-        rewards, values, segment.episode_starts, last_values, segment.dones[-1], gamma, gae_lambda
-    )
+    if trace_ratios is not None:
+        ratios = trace_ratios(flat_obs)
+        advantages, returns = vtrace_gae(rewards, values, segment.dones, last_values, ratios, gamma, gae_lambda)
+    else:
+        advantages, returns = compute_gae(
+            rewards, values, segment.episode_starts, last_values, segment.dones[-1], gamma, gae_lambda
+        )
     return RolloutEvaluation(segment=segment, observations=flat_obs, values=values, advantages=advantages, returns=returns)
 
 

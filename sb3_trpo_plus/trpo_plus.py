@@ -12,7 +12,7 @@ import tempfile
 import time
 import warnings
 from collections import deque
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
@@ -37,6 +37,7 @@ from sb3_trpo_plus.replay import (
     StoredRollout,
     recompute_advantages,
 )
+from sb3_trpo_plus.reuse import ReuseWeights, reuse_weights
 from sb3_trpo_plus.rollouts import RolloutWorkers, buried_rollout_workers, rollout_workers
 from sb3_trpo_plus.segment import (
     LoopState,
@@ -60,6 +61,7 @@ from sb3_trpo_plus.update import (
 SelfTRPOPlus = TypeVar("SelfTRPOPlus", bound="TRPOPlus")
 
 VALUE_BASELINES = ("critic", "linear")
+SAMPLE_REUSE = ("none", "generalized")
 
 
 def actor_parameters(policy: ActorCriticPolicy) -> list[nn.Parameter]:
@@ -139,6 +141,11 @@ HYPERPARAMETER_RULES: dict[str, Rule] = {
     "sub_sampling_factor": integer(1),
     "fisher_sub_sampling": integer(1),
     "replay_memory": integer(0),
+    "sample_reuse": Rule(lambda value: isinstance(value, str) and value in SAMPLE_REUSE, f"one of {SAMPLE_REUSE}"),
+    "reuse_batches": number(lambda x: x >= 1, ">= 1"),
+    "reuse_max_batches": integer(1),
+    "reuse_trace_clip": number(lambda x: x > 0, "> 0"),
+    "reuse_kl_vary": boolean(),
     "replay_is_clip": number(lambda x: x > 0, "> 0", optional=True),
     "replay_critic": boolean(),
     "cg_warm_start": boolean(),
@@ -177,6 +184,27 @@ def _float_or_schedule(value: float | Schedule) -> float | Schedule:
 
 
 # ---------------------------------------------------------------------- records of one update
+@dataclass(frozen=True)
+class ReusedBatch:
+    """A generalized update's samples: the policy batch (with sample weights) and the critic's data.
+
+    :param critic_observations: every sample's observation (no sub-sampling)
+    :param critic_returns: off-policy GAE targets (the fresh batch's: SB3's returns)
+    :param critic_weights: every sample's batch weight
+    :param n_batches: batches at hand, the fresh one included
+    :param radius: the update's trust-region radius
+    :param offpolicy_tv: ``mean(w * |pi_current / q - 1|) / 2``, how far the current policy is from the stored batches'
+    """
+
+    batch: PolicyBatch
+    critic_observations: th.Tensor
+    critic_returns: th.Tensor
+    critic_weights: th.Tensor
+    n_batches: int
+    radius: float
+    offpolicy_tv: float
+
+
 @dataclass(frozen=True)
 class UpdateTimings:
     """Seconds of an update's phases: advantages and the batch (``prepare``: the linear baseline, the replayed
@@ -241,6 +269,19 @@ class TRPOPlus(TRPO):
         (thesis 5.3.1 used k=3). Each update recomputes their values, GAE advantages and returns with the
         current value function and weights them by ``pi_theta / q`` where ``q`` sampled them.
         Memory holds at most ``k * n_steps * n_envs`` samples.
+    :param sample_reuse: ``"generalized"``: every update also learns from the last batches of earlier policies with a
+        generalized trust region (GeTRPO, Queeney et al. 2021, https://arxiv.org/abs/2111.00072): batch weights by age
+        that maximise the effective sample size (``reuse_batches``, ``reuse_max_batches``), off-policy GAE with
+        truncated traces for the advantages and the critic's targets, a weighted surrogate, Fisher matrix and KL, and
+        the radius ``target_kl / reuse_batches**2`` (``epsilon = sqrt(2 target_kl)`` scaled by ``1 / B``). Collect
+        ``1 / B`` of the on-policy batch per update (``n_steps``): the same samples buy ``B`` times the updates.
+        ``"none"``: on-policy (or the thesis' ``replay_memory``)
+    :param reuse_batches: ``B``, how many fresh batches' worth of samples one generalized update weighs (GePPO: 2)
+    :param reuse_max_batches: ``M_max``, the oldest batch a generalized update may reuse (GePPO: 10; ``B = 2`` then
+        uses 4 batches weighted 0.4, 0.3, 0.2, 0.1)
+    :param reuse_trace_clip: truncation of the importance ratios that carry off-policy GAE's traces (V-trace: 1)
+    :param reuse_kl_vary: the generalized radius ``epsilon = sqrt(2 target_kl)`` less the weighted mean
+        ``|pi_k / q - 1|`` the old batches already spent (GeTRPO's ``eps_vary``), instead of the ``1 / B`` scaling
     :param replay_is_clip: Truncate the importance weights ``pi_current / q`` of replayed samples at this
         value (``None``: no truncation). Their effective sample size is logged as ``train/replay_ess``.
     :param replay_critic: Also fit the critic on replayed rollouts (default: current rollout only, as the thesis)
@@ -285,6 +326,11 @@ class TRPOPlus(TRPO):
         sub_sampling_factor: int = 1,
         fisher_sub_sampling: int = 1,
         replay_memory: int = 0,
+        sample_reuse: str = "none",
+        reuse_batches: float = 2.0,
+        reuse_max_batches: int = 10,
+        reuse_trace_clip: float = 1.0,
+        reuse_kl_vary: bool = False,
         replay_is_clip: float | None = None,
         replay_critic: bool = False,
         cg_warm_start: bool = False,
@@ -307,7 +353,9 @@ class TRPOPlus(TRPO):
             sde_sample_freq=sde_sample_freq, rollout_buffer_class=rollout_buffer_class,
             rollout_buffer_kwargs=rollout_buffer_kwargs, normalize_advantage=normalize_advantage,
             target_kl=target_kl, sub_sampling_factor=sub_sampling_factor, fisher_sub_sampling=fisher_sub_sampling,
-            replay_memory=replay_memory, replay_is_clip=replay_is_clip, replay_critic=replay_critic,
+            replay_memory=replay_memory, sample_reuse=sample_reuse, reuse_batches=reuse_batches,
+            reuse_max_batches=reuse_max_batches, reuse_trace_clip=reuse_trace_clip, reuse_kl_vary=reuse_kl_vary,
+            replay_is_clip=replay_is_clip, replay_critic=replay_critic,
             cg_warm_start=cg_warm_start, cg_warm_start_rescale=cg_warm_start_rescale, value_baseline=value_baseline,
             linear_baseline_l2=linear_baseline_l2, stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose, seed=seed, device=device,
@@ -333,6 +381,19 @@ class TRPOPlus(TRPO):
         )  # fmt: skip
         self.fisher_sub_sampling = int(fisher_sub_sampling)
         self.replay_memory = int(replay_memory)
+        self.sample_reuse = sample_reuse
+        self.reuse_batches = float(reuse_batches)
+        self.reuse_max_batches = int(reuse_max_batches)
+        self.reuse_trace_clip = float(reuse_trace_clip)
+        self.reuse_kl_vary = reuse_kl_vary
+        if sample_reuse == "generalized":
+            conflicts = {"replay_memory": replay_memory > 0, "value_baseline='linear'": value_baseline == "linear",
+                         "replay_critic": replay_critic, "replay_is_clip": replay_is_clip is not None}  # fmt: skip
+            if named := [name for name, conflict in conflicts.items() if conflict]:
+                raise ValueError(
+                    f"TRPOPlus: sample_reuse='generalized' reuses batches its own way; it does not combine with {named}"
+                )
+            reuse_weights(self.reuse_batches, self.reuse_max_batches)  # names a B out of reach of M_max now
         self.replay_is_clip = None if replay_is_clip is None else float(replay_is_clip)
         self.replay_critic = replay_critic
         self.cg_warm_start = cg_warm_start
@@ -358,7 +419,14 @@ class TRPOPlus(TRPO):
     # ------------------------------------------------------------------ set-up
     @property
     def _needs_rollout_record(self) -> bool:
-        return self.replay_memory > 0 or self.value_baseline == "linear"
+        return self.replay_memory > 0 or self.value_baseline == "linear" or self.sample_reuse == "generalized"
+
+    @property
+    def reuse(self) -> ReuseWeights | None:
+        """The batch weights of ``sample_reuse="generalized"`` (None otherwise)."""
+        if self.sample_reuse != "generalized":
+            return None
+        return reuse_weights(self.reuse_batches, self.reuse_max_batches)
 
     def _setup_model(self) -> None:
         # None, or SB3's own classes in a model saved by version 0.1.0: the buffers that hold their segment
@@ -369,7 +437,9 @@ class TRPOPlus(TRPO):
         self._update_target_kl()
         self._actor_params = actor_parameters(self.policy)  # type: ignore[arg-type]
         memory = getattr(self, "rollout_memory", None)
-        self.rollout_memory = deque(memory or [], maxlen=max(self.replay_memory, 1))
+        reuse = self.reuse
+        capacity = reuse.n_batches - 1 if reuse is not None else self.replay_memory
+        self.rollout_memory = deque(memory or [], maxlen=max(capacity, 1))
         if self.value_baseline == "linear" and getattr(self, "linear_baseline", None) is None:
             self.linear_baseline = LinearFeatureBaseline(l2_reg=self.linear_baseline_l2)
 
@@ -539,15 +609,24 @@ class TRPOPlus(TRPO):
         self._update_target_kl()
         if self.value_baseline == "linear":
             self._write_linear_baseline_advantages(segment)
-        # Re-evaluate the stored rollouts once: the value function does not change before the critic fit
-        replayed = self._reevaluate_memory()
-        batch = self._policy_batch(replayed)
-        prepared = time.perf_counter()
-        policy_step = self.update_policy(batch)
+        if self.sample_reuse == "generalized":
+            reused = self._generalized_batch()
+            batch, replayed = reused.batch, []
+            prepared = time.perf_counter()
+            policy_step = self.update_policy(batch, reused.radius)
+            stepped = time.perf_counter()
+            value_fit = self._fit_weighted_critic(reused) if batch.n_replayed else self._update_value_baseline(segment, [])
+            self._log_reuse(reused)
+        else:
+            # Re-evaluate the stored rollouts once: the value function does not change before the critic fit
+            replayed = self._reevaluate_memory()
+            batch = self._policy_batch(replayed)
+            prepared = time.perf_counter()
+            policy_step = self.update_policy(batch)
+            stepped = time.perf_counter()
+            value_fit = self._update_value_baseline(segment, replayed)
         self.previous_step = policy_step.applied_step  # the next update's CG warm start
-        stepped = time.perf_counter()
-        value_fit = self._update_value_baseline(segment, replayed)
-        if self.replay_memory > 0:
+        if self.replay_memory > 0 or (self.reuse is not None and self.reuse.n_batches > 1):
             assert self.rollout_memory is not None
             self.rollout_memory.append(segment)
         self._n_updates += 1
@@ -574,8 +653,11 @@ class TRPOPlus(TRPO):
             obs_tensor = self.policy.obs_to_tensor(observations)[0]
             return self.policy.predict_values(obs_tensor).cpu().numpy().reshape(-1)  # type: ignore[arg-type]
 
-    def _reevaluate(self, segment: Segment) -> RolloutEvaluation:
-        """``segment`` under the current value function and ``VecNormalize`` statistics."""
+    def _reevaluate(
+        self, segment: Segment, trace_ratios: Callable[[np.ndarray], np.ndarray] | None = None
+    ) -> RolloutEvaluation:
+        """``segment`` under the current value function and ``VecNormalize`` statistics (off-policy GAE with
+        ``trace_ratios``)."""
         vec_normalize = self.get_vec_normalize_env()
         return recompute_advantages(
             segment,
@@ -586,6 +668,7 @@ class TRPOPlus(TRPO):
             normalize_reward=vec_normalize.normalize_reward
             if vec_normalize is not None and vec_normalize.norm_reward
             else None,
+            trace_ratios=trace_ratios,
         )
 
     def _reevaluate_memory(self) -> list[RolloutEvaluation]:
@@ -632,15 +715,102 @@ class TRPOPlus(TRPO):
             n_current=n_current,
         )
 
+    def _generalized_batch(self) -> ReusedBatch:
+        """The fresh segment (as SB3 buffered it) and the stored ones, newest first, for a generalized update: each
+        stored segment evaluated now (current statistics and critic) with off-policy GAE whose traces are the current
+        policy's truncated importance ratios; every sample weighted by its batch's age (:class:`ReuseWeights`)."""
+        reuse = self.reuse
+        assert reuse is not None
+        current = next(self.rollout_buffer.get(batch_size=None))
+        stored = list(reversed(self.rollout_memory or []))
+        weights = reuse.per_sample(1 + len(stored))
+        n_current = len(current.advantages)
+        observations, actions, sampling = [current.observations], [current.actions], [current.old_log_prob]
+        advantages, returns = [current.advantages], [current.returns]
+        sample_weights = [th.full((n_current,), float(weights[0]), device=self.device)]
+        for age, segment in enumerate(stored, start=1):
+            as_buffered = segment.actions.reshape(segment.n_samples, -1).astype(np.float32)  # the buffer's actions
+            stored_actions = th.as_tensor(as_buffered, device=self.device)
+            behaviour = th.as_tensor(segment.log_probs.reshape(-1), device=self.device)
+            evaluation = self._reevaluate(segment, trace_ratios=self._trace_ratios(segment, stored_actions, behaviour))
+            observations.append(self.policy.obs_to_tensor(evaluation.observations)[0])  # type: ignore[arg-type]
+            actions.append(stored_actions)
+            sampling.append(behaviour)
+            advantages.append(th.as_tensor(evaluation.advantages.reshape(-1), device=self.device))
+            returns.append(th.as_tensor(evaluation.returns.reshape(-1), device=self.device))
+            sample_weights.append(th.full((segment.n_samples,), float(weights[age]), device=self.device))
+        all_observations, all_actions = th.cat(observations), th.cat(actions)  # type: ignore[arg-type]
+        all_sampling, all_weights = th.cat(sampling), th.cat(sample_weights)
+        with th.no_grad():  # how far the current policy already is from the ones that collected the stored batches
+            log_prob = self.policy.get_distribution(all_observations).log_prob(self.action_tensor(all_actions))
+        offpolicy = th.exp(th.clamp(log_prob - all_sampling, -50.0, 50.0))
+        offpolicy[:n_current] = 1.0
+        spent = float((all_weights * (offpolicy - 1.0).abs()).mean())
+        if self.reuse_kl_vary:
+            radius = max(math.sqrt(2.0 * self.current_target_kl) - spent, 0.0) ** 2 / 2.0
+        else:
+            radius = self.current_target_kl * reuse.trust_scale**2
+        k = self.sub_sampling_factor
+        batch = PolicyBatch(
+            observations=all_observations[::k], actions=all_actions[::k], sampling_log_prob=all_sampling[::k],
+            advantages=th.cat(advantages)[::k], n_current=len(range(0, n_current, k)), sample_weights=all_weights[::k],
+        )  # fmt: skip
+        return ReusedBatch(
+            batch=batch, critic_observations=all_observations, critic_returns=th.cat(returns), critic_weights=all_weights,
+            n_batches=1 + len(stored), radius=radius, offpolicy_tv=spent / 2.0,
+        )  # fmt: skip
+
+    def _trace_ratios(self, segment: Segment, actions: th.Tensor, behaviour: th.Tensor) -> Callable[[np.ndarray], np.ndarray]:
+        """``c_t = min(pi_current / q, reuse_trace_clip)`` of ``segment``'s actions, from its normalised observations."""
+
+        def ratios(flat_observations: np.ndarray) -> np.ndarray:
+            with th.no_grad():
+                distribution = self.policy.get_distribution(self.policy.obs_to_tensor(flat_observations)[0])  # type: ignore[arg-type]
+                log_prob = distribution.log_prob(self.action_tensor(actions))
+            ratio = th.exp(th.clamp(log_prob - behaviour, -50.0, 50.0)).cpu().numpy()
+            return np.minimum(ratio, self.reuse_trace_clip).reshape(segment.n_steps, segment.n_envs)
+
+        return ratios
+
+    def _fit_weighted_critic(self, reused: ReusedBatch) -> ValueFit:
+        """Critic epochs on every reused sample: weighted squared error to the off-policy GAE targets (GePPO's
+        critic), minibatches of ``batch_size`` from one permutation per epoch."""
+        observations, returns, weights = reused.critic_observations, reused.critic_returns, reused.critic_weights
+        losses, skipped = [], 0
+        for _ in range(self.n_critic_updates):
+            order = th.as_tensor(np.random.permutation(len(returns)), device=self.device)
+            for start in range(0, len(returns), self.batch_size):
+                idx = order[start : start + self.batch_size]
+                values = self.policy.predict_values(observations[idx]).flatten()
+                value_loss = (weights[idx] * (returns[idx] - values) ** 2).mean()
+                loss = value_loss.item()
+                if not math.isfinite(loss):
+                    skipped += 1
+                    continue
+                self.policy.optimizer.zero_grad()
+                value_loss.backward()
+                for param in self._actor_params:  # actor parameters move by the trust-region step only
+                    param.grad = None
+                losses.append(loss)
+                self.policy.optimizer.step()
+        return ValueFit(loss=float(np.mean(losses)) if losses else math.nan, skipped_steps=skipped)
+
+    def _log_reuse(self, reused: ReusedBatch) -> None:
+        self.logger.record("train/reuse_batches", reused.n_batches)
+        self.logger.record("train/reuse_radius", reused.radius)
+        self.logger.record("train/reuse_offpolicy_tv", reused.offpolicy_tv)
+
     def action_tensor(self, actions: th.Tensor) -> th.Tensor:
         """The batch's actions as the policy's distribution takes them (indices for a ``Discrete`` space)."""
         return actions.long().flatten() if isinstance(self.action_space, spaces.Discrete) else actions
 
-    def update_policy(self, batch: PolicyBatch) -> PolicyStep:
-        """The update's policy step: one natural-gradient step inside the trust region of radius
-        ``current_target_kl`` (:func:`~sb3_trpo_plus.update.natural_gradient_step`), CG warm-started from the previous
-        update's step with ``cg_warm_start``. A subclass that changes the policy step overrides this method and calls
-        the public functions of :mod:`sb3_trpo_plus.update`."""
+    def update_policy(self, batch: PolicyBatch, radius: float | None = None) -> PolicyStep:
+        """The update's policy step: one natural-gradient step inside the trust region of ``radius`` (default
+        ``current_target_kl``; :func:`~sb3_trpo_plus.update.natural_gradient_step`), CG warm-started from the previous
+        update's step with ``cg_warm_start``; the batch's sample weights, where it has them, weigh the surrogate, the
+        Fisher matrix and the KL. A subclass that changes the policy step overrides this method and calls the public
+        functions of :mod:`sb3_trpo_plus.update`."""
+        radius = self.current_target_kl if radius is None else radius
         actions = self.action_tensor(batch.actions)
         distribution = self.policy.get_distribution(batch.observations)
         # Anchor of the KL constraint and of the Fisher matrix: the current policy on all states
@@ -650,7 +820,7 @@ class TRPOPlus(TRPO):
         )
         return natural_gradient_step(
             self.policy, self._actor_params, batch, actions, distribution, surrogate, anchor,
-            step_kl=self.current_target_kl, max_kl=self.current_target_kl, settings=self.natural_gradient_settings,
+            step_kl=radius, max_kl=radius, settings=self.natural_gradient_settings,
             warm_start=warm_start_from(self.previous_step) if self.cg_warm_start else no_warm_start,
         )  # fmt: skip
 

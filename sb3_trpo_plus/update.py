@@ -30,13 +30,18 @@ from sb3_trpo_plus.replay import effective_sample_size, importance_weights
 # ---------------------------------------------------------------------------------------------------- records
 @dataclass(frozen=True)
 class PolicyBatch:
-    """Samples of one policy update: the current rollout (``n_current`` samples) followed by the replayed ones."""
+    """Samples of one policy update: the current rollout (``n_current`` samples) followed by the replayed ones.
+
+    :param sample_weights: per sample, the weight of its batch in the surrogate, the Fisher matrix and the KL of a
+        generalized trust region (None: all equal)
+    """
 
     observations: th.Tensor
     actions: th.Tensor
     sampling_log_prob: th.Tensor
     advantages: th.Tensor
     n_current: int
+    sample_weights: th.Tensor | None = None
 
     @property
     def n_replayed(self) -> int:
@@ -111,9 +116,22 @@ def surrogate_advantages(
     """The batch's advantages as the surrogate weighs them: normalised over the batch (``normalize``), the replayed
     samples' importance weights ``pi_current / q`` truncated at ``replay_is_clip`` by a constant factor.
 
-    ``log_prob`` is the current policy's; the current rollout is on-policy by construction (weight 1).
+    ``log_prob`` is the current policy's; the current rollout is on-policy by construction (weight 1). With the batch's
+    ``sample_weights`` (a generalized update), the advantages are centred and scaled by their weighted statistics
+    under the off-policy ratios ``r = pi_current / q`` (GeTRPO's), and come out multiplied by the weights, so that
+    the surrogate ``mean(A * pi / q)`` is the weighted one; ``replay_is_clip`` does not apply.
     """
     advantages = batch.advantages
+    if batch.sample_weights is not None:
+        weights = batch.sample_weights
+        ratio = th.exp(th.clamp(log_prob - batch.sampling_log_prob, -50.0, 50.0))
+        ratio[: batch.n_current] = 1.0
+        if normalize:
+            weighted = ratio * weights
+            mean = (weighted * advantages).sum() / weighted.sum()
+            advantages = (advantages - mean) / ((weighted * advantages).std() + 1e-8)
+        ess = effective_sample_size((ratio * weights).cpu().numpy()) / len(weights)
+        return SurrogateAdvantages(advantages=advantages * weights, replay_ess=ess)
     if normalize:
         advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
     if batch.n_replayed == 0:
@@ -162,7 +180,8 @@ def natural_gradient_step(
     Gradient of the importance-weighted surrogate ``mean(A * pi / q)`` and Fisher matrix at ``distribution`` (the
     policy at the current parameters, with its graph), CG started from ``warm_start(gradient)``, a full step of
     quadratic KL ``step_kl``, and a backtracking line search that accepts the first trial improving the surrogate
-    with a mean KL to ``anchor`` within ``max_kl``.
+    with a mean KL to ``anchor`` within ``max_kl``. The batch's ``sample_weights`` (where it has them) weigh the
+    Fisher matrix and the KL; the surrogate's weights come with its advantages (:func:`surrogate_advantages`).
 
     :param policy: the policy whose ``get_distribution`` evaluates the trials
     :param actor_params: the parameters the step changes
@@ -175,7 +194,9 @@ def natural_gradient_step(
     fisher_distribution = distribution
     if settings.fisher_sub_sampling > 1:
         fisher_distribution = policy.get_distribution(batch.observations[:: settings.fisher_sub_sampling])
-    fvp = fisher_vector_product(fisher_distribution, actor_params, damping=settings.cg_damping)
+    weights = batch.sample_weights
+    fisher_weights = None if weights is None else weights[:: settings.fisher_sub_sampling]
+    fvp = fisher_vector_product(fisher_distribution, actor_params, damping=settings.cg_damping, sample_weights=fisher_weights)
 
     start = warm_start(gradient)
     cg = conjugate_gradient(
@@ -189,8 +210,10 @@ def natural_gradient_step(
         new_distribution = policy.get_distribution(batch.observations)
         new_log_prob = new_distribution.log_prob(actions)
         new_objective = (advantages * th.exp(new_log_prob - batch.sampling_log_prob)).mean()
-        kl = kl_divergence(new_distribution, anchor).mean()
-        return float(new_objective), float(kl)
+        kl = kl_divergence(new_distribution, anchor)
+        if weights is not None:
+            kl = kl * weights.reshape(-1, *([1] * (kl.dim() - 1)))
+        return float(new_objective), float(kl.mean())
 
     result = backtracking_line_search(
         actor_params, full_step, evaluate, float(objective.detach()), max_kl,

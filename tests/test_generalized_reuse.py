@@ -1,0 +1,107 @@
+"""TRPOPlus(sample_reuse="generalized"): the generalized trust region's update against plain TRPOPlus, its memory,
+and every collection path."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import VecNormalize
+
+from sb3_trpo_plus import TRPOPlus
+from sb3_trpo_plus.rollouts import InProcessRollouts
+
+TINY = dict(n_steps=64, batch_size=64, n_critic_updates=3, policy_kwargs={"net_arch": [16]}, device="cpu")
+
+
+def _parameters(model: TRPOPlus) -> dict[str, np.ndarray]:
+    return {name: value.detach().numpy().copy() for name, value in model.policy.state_dict().items()}
+
+
+@pytest.mark.parametrize("env_id", ["Pendulum-v1", "CartPole-v1"])
+def test_one_batch_is_plain_trpo_plus(env_id: str) -> None:
+    """B = M = 1 with the same radius: every update equals plain TRPOPlus' (and so sb3-contrib's) to 1e-6."""
+    results = []
+    for reuse in ("none", "generalized"):
+        env = VecNormalize(make_vec_env(env_id, n_envs=2, seed=1))
+        model = TRPOPlus("MlpPolicy", env, seed=0, sample_reuse=reuse, reuse_batches=1, **TINY)
+        model.learn(4 * 128)
+        results.append(_parameters(model))
+    for name in results[0]:
+        np.testing.assert_allclose(results[1][name], results[0][name], rtol=1e-6, atol=1e-6, err_msg=name)
+
+
+def test_the_memory_holds_the_older_batches_and_the_update_weighs_them() -> None:
+    env = VecNormalize(make_vec_env("Pendulum-v1", n_envs=2, seed=1))
+    model = TRPOPlus("MlpPolicy", env, seed=0, sample_reuse="generalized", **TINY)  # B = 2, M_max = 10: 4 batches
+    assert model.reuse is not None and model.reuse.n_batches == 4
+    seen = []
+    for _ in range(5):
+        model.learn(128, reset_num_timesteps=False)
+        logged = model.logger.name_to_value
+        seen.append((len(model.rollout_memory), logged["train/reuse_batches"], logged["train/reuse_radius"]))
+        assert logged["train/kl_divergence_loss"] <= logged["train/reuse_radius"] * (1 + 1e-6)
+    assert [memory for memory, _, _ in seen] == [1, 2, 3, 3, 3]  # M - 1 stored segments at most
+    assert [batches for _, batches, _ in seen] == [1, 2, 3, 4, 4]  # the fresh batch and the stored ones
+    assert all(radius == pytest.approx(0.01 / 4) for _, _, radius in seen)  # target_kl / B**2
+
+
+def test_kl_vary_spends_the_radius_the_old_batches_already_used() -> None:
+    env = VecNormalize(make_vec_env("Pendulum-v1", n_envs=2, seed=1))
+    model = TRPOPlus("MlpPolicy", env, seed=0, sample_reuse="generalized", reuse_kl_vary=True, **TINY)
+    model.learn(3 * 128)
+    logged = model.logger.name_to_value
+    spent = 2 * logged["train/reuse_offpolicy_tv"]
+    assert spent > 0
+    assert logged["train/reuse_radius"] == pytest.approx(max(np.sqrt(2 * 0.01) - spent, 0) ** 2 / 2, rel=1e-5)
+
+
+def test_save_load_keeps_the_memory_bit_exact(tmp_path: Path) -> None:
+    env = VecNormalize(make_vec_env("Pendulum-v1", n_envs=2, seed=1))
+    model = TRPOPlus("MlpPolicy", env, seed=0, sample_reuse="generalized", **TINY).learn(3 * 128)
+    model.save(tmp_path / "model.zip")
+    loaded = TRPOPlus.load(tmp_path / "model.zip", env=env)
+    assert len(loaded.rollout_memory) == len(model.rollout_memory) == 3  # three updates, M - 1 = 3 kept
+    for a, b in zip(model.rollout_memory, loaded.rollout_memory, strict=True):
+        for name in ("raw_observations", "actions", "log_probs", "raw_rewards", "dones", "episode_timesteps"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert loaded.reuse is not None and loaded.rollout_memory.maxlen == 3
+
+
+@pytest.mark.parametrize("collector", ["workers", "batched"])
+def test_every_collection_path_learns(collector: str) -> None:
+    if collector == "workers":
+        env = VecNormalize(InProcessRollouts("Reacher2D-v1", num_workers=2, envs_per_worker=2, seed=0))
+    else:
+        from grasp_envs import make_batch_env
+
+        env = VecNormalize(make_batch_env("Grasper3D-v7", 4, seed=0))
+    try:
+        model = TRPOPlus("MlpPolicy", env, seed=0, sample_reuse="generalized", **TINY).learn(4 * 256)
+        logged = model.logger.name_to_value
+        assert logged["train/reuse_batches"] == 4 and np.isfinite(logged["train/value_loss"])
+        assert all(th.isfinite(p).all() for p in model.policy.parameters())
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"replay_memory": 2}, "does not combine with \\['replay_memory'\\]"),
+        ({"value_baseline": "linear"}, "value_baseline='linear'"),
+        ({"reuse_batches": 6}, "batches must be in \\[1, 5.5\\]"),
+        ({"reuse_trace_clip": 0}, "`reuse_trace_clip` must be a finite number > 0"),
+    ],
+)
+def test_conflicting_settings_are_named(kwargs: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        TRPOPlus("MlpPolicy", "Pendulum-v1", sample_reuse="generalized", **kwargs)
+
+
+def test_unknown_reuse_is_named() -> None:
+    with pytest.raises(ValueError, match="`sample_reuse` must be one of \\('none', 'generalized'\\)"):
+        TRPOPlus("MlpPolicy", "Pendulum-v1", sample_reuse="thesis")
