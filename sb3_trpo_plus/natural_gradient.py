@@ -69,6 +69,7 @@ class ConjugateGradientResult:
     :param matvecs: total matrix-vector products, including the one a warm start needs
     :param quadratic_form: ``x^T A x`` computed from the recurrence (``x^T (b - r)``), so the caller
         does not need another product to scale the step
+    :param residual_norms: ``||b - A x||`` at the start and after every iteration (``iterations + 1`` values)
     """
 
     solution: th.Tensor
@@ -76,6 +77,7 @@ class ConjugateGradientResult:
     residual_norm: float
     matvecs: int
     quadratic_form: float
+    residual_norms: tuple[float, ...] = ()
 
 
 def conjugate_gradient(
@@ -115,6 +117,7 @@ def conjugate_gradient(
                 a_x = scale * a_x
         residual = b - a_x
     residual_sq = th.dot(residual, residual)
+    history = [residual_sq]
     direction = residual.clone()
     iterations = 0
     while iterations < max_iter and residual_sq > residual_tol:
@@ -130,6 +133,7 @@ def conjugate_gradient(
         new_residual_sq = th.dot(residual, residual)
         direction = residual + (new_residual_sq / residual_sq) * direction
         residual_sq = new_residual_sq
+        history.append(residual_sq)
         iterations += 1
     quadratic_form = float(th.dot(x, b - residual))
     return ConjugateGradientResult(
@@ -138,6 +142,7 @@ def conjugate_gradient(
         residual_norm=math.sqrt(max(float(residual_sq), 0.0)),
         matvecs=matvecs,
         quadratic_form=quadratic_form,
+        residual_norms=tuple(math.sqrt(max(float(value), 0.0)) for value in history),
     )
 
 

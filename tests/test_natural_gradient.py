@@ -43,6 +43,9 @@ def test_cg_hand_computed_two_by_two() -> None:
     one = conjugate_gradient(lambda v: a @ v, b, max_iter=1)
     np.testing.assert_allclose(one.solution.numpy(), (20.0 / 72.0) * b.numpy())
     assert one.iterations == 1 and one.matvecs == 1
+    # residual b - A x after the step: (2 - 2 * 20/72 * 2, 4 - 4 * 20/72 * 4) = (8/9, -4/9)
+    np.testing.assert_allclose(one.residual_norms, [np.sqrt(20.0), np.sqrt(80.0) / 9.0])
+    assert one.residual_norms[-1] == pytest.approx(one.residual_norm)
     two = conjugate_gradient(lambda v: a @ v, b, max_iter=2, residual_tol=1e-30)
     np.testing.assert_allclose(two.solution.numpy(), [1.0, 1.0], atol=1e-12)
 

@@ -1,0 +1,140 @@
+"""Does the CG warm start reach the zero start's residual in fewer Fisher-vector products? Both starts, every update.
+
+    python -m benchmarks.cg_residuals --envs Grasper3D-v7 Hopper-v5 --updates 40 --seed 0
+
+Each env trains its recipe (zoo_hyperparams/trpo_plus.yml, ``cg_warm_start`` on, the recipe's ``cg_max_steps``) for
+``--updates`` updates. At every update that TRPOPlus warm-starts, the same gradient and Fisher products are also
+solved from zero, and the relative residual ``||g - F x_k|| / ||g||`` after every iteration of both solves is
+recorded. Training follows the warm-started solution, as TRPOPlus does; the zero-start solve only measures.
+
+Per env the script prints the median relative residual after each iteration for both starts, and, per update, the
+Fisher-vector products the warm start needs to reach the zero start's final residual (its start costs one product,
+counted); the raw histories go to benchmarks/results/cg_residuals.json and the plot to docs/images/cg_residuals.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+
+import sb3_trpo_plus.update as update_module
+from sb3_trpo_plus.natural_gradient import ConjugateGradientResult, conjugate_gradient
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def products_to_reach(history: Sequence[float], target: float, start_cost: int) -> int | None:
+    """Fisher-vector products until ``history`` (a residual per iteration, the start first) is at or below
+    ``target``; None where it never is. The start costs ``start_cost`` products (1 for a warm start, 0 from zero)."""
+    for iteration, residual in enumerate(history):
+        if residual <= target:
+            return start_cost + iteration
+    return None
+
+
+def measure(env_id: str, updates: int, seed: int) -> dict[str, Any]:
+    """Train ``env_id``'s recipe with the warm start for ``updates`` updates; both starts' residual histories."""
+    from sb3_trpo_plus import TRPOPlus, make_model
+
+    th.set_num_threads(1)
+    model = make_model(env_id, seed=seed, cg_warm_start=True)
+    assert isinstance(model, TRPOPlus)
+    rows: list[dict[str, Any]] = []
+    solve = update_module.conjugate_gradient
+
+    def solve_both(fvp: Any, b: th.Tensor, x0: th.Tensor | None = None, **kwargs: Any) -> ConjugateGradientResult:
+        warm = solve(fvp, b, x0, **kwargs)
+        if x0 is not None and bool(th.any(x0 != 0)):
+            zero = conjugate_gradient(fvp, b, None, max_iter=kwargs["max_iter"])
+            scale = max(float(th.linalg.vector_norm(b)), 1e-30)
+            rows.append({
+                "warm": [r / scale for r in warm.residual_norms], "zero": [r / scale for r in zero.residual_norms],
+                "warm_products": warm.matvecs, "zero_products": zero.matvecs,
+            })  # fmt: skip
+        return warm
+
+    update_module.conjugate_gradient = solve_both  # type: ignore[assignment]
+    try:
+        model.learn(updates * model.n_steps * model.n_envs)
+    finally:
+        update_module.conjugate_gradient = solve
+        env = model.get_env()
+        if env is not None:
+            env.close()
+    return {"env": env_id, "seed": seed, "cg_max_steps": model.cg_max_steps, "updates": rows}
+
+
+def summary(result: dict[str, Any]) -> list[str]:
+    rows = result["updates"]
+    depth = min(min(len(row["warm"]), len(row["zero"])) for row in rows)
+    warm = np.median([row["warm"][:depth] for row in rows], axis=0)
+    zero = np.median([row["zero"][:depth] for row in rows], axis=0)
+    reached = [products_to_reach(row["warm"], row["zero"][-1], 1) for row in rows]
+    found = [r for r in reached if r is not None]
+    lines = [f"{result['env']}: {len(rows)} warm-started updates, cg_max_steps {result['cg_max_steps']}"]
+    lines.append("iteration | " + " | ".join(str(i) for i in range(depth)))
+    lines.append("zero start | " + " | ".join(f"{v:.3f}" for v in zero))
+    lines.append("warm start | " + " | ".join(f"{v:.3f}" for v in warm))
+    lines.append(
+        f"products for the warm start to reach the zero start's final residual: median "
+        f"{np.median(found) if found else float('nan'):.0f} (zero start: {rows[0]['zero_products']}); "
+        f"reached in {len(found)} of {len(rows)} updates"
+    )
+    return lines
+
+
+def plot(results: Sequence[dict[str, Any]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(results), figsize=(5 * len(results), 3.6), squeeze=False)
+    for ax, result in zip(axes[0], results, strict=True):
+        rows = result["updates"]
+        for start, colour, offset in (("zero", "tab:blue", 0), ("warm", "tab:orange", 1)):
+            depth = min(len(row[start]) for row in rows)
+            curves = np.array([row[start][:depth] for row in rows])
+            products = np.arange(depth) + offset  # the warm start's first residual costs one product
+            ax.plot(products, np.median(curves, axis=0), color=colour, label=f"{start} start (median)")
+            ax.fill_between(products, *np.percentile(curves, [25, 75], axis=0), color=colour, alpha=0.2)
+        ax.set_yscale("log")
+        ax.set_xlabel("Fisher-vector products")
+        ax.set_ylabel("||g - F x|| / ||g||")
+        ax.set_title(f"{result['env']} ({len(rows)} updates)")
+        ax.legend()
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--envs", nargs="+", default=["Grasper3D-v7", "Hopper-v5"])
+    parser.add_argument("--updates", type=int, default=40)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "cg_residuals.json")
+    parser.add_argument("--plot", type=Path, default=ROOT / "docs" / "images" / "cg_residuals.png")
+    args = parser.parse_args(argv)
+    results = [measure(env_id, args.updates, args.seed) for env_id in args.envs]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    command = (
+        "python -m benchmarks.cg_residuals --envs " + " ".join(args.envs) + f" --updates {args.updates} --seed {args.seed}"
+    )
+    machine = {"cpu": platform.processor() or platform.machine(), "python": platform.python_version(), "torch": th.__version__}
+    args.out.write_text(json.dumps({"command": command, "machine": machine, "results": results}) + "\n")
+    plot(results, args.plot)
+    for result in results:
+        print("\n".join(summary(result)) + "\n")
+    print(f"raw results: {args.out}; plot: {args.plot}")
+
+
+if __name__ == "__main__":
+    main()
