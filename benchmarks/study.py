@@ -37,7 +37,20 @@ class HoldThenShrink:
         return self.start + (self.end - self.start) * (done - self.hold) / (1.0 - self.hold)
 
 
-SCHEDULES: dict[str, type] = {"hold_then_shrink": HoldThenShrink}  # a hyperparameter written {<name>: {kwargs}}
+@dataclass(frozen=True)
+class TimesZoo:
+    """A hyperparameter as a multiple of the zoo's value on each env (``n_steps: {times_zoo: {factor: 0.5}}``),
+    rounded to an integer where the zoo's is one."""
+
+    factor: float
+
+    def of(self, zoo_value: Any) -> Any:
+        value = zoo_value * self.factor
+        return max(int(round(value)), 1) if isinstance(zoo_value, int) else float(value)
+
+
+# a hyperparameter written {<name>: {kwargs}}: a schedule of the remaining progress, or a multiple of the zoo's value
+SCHEDULES: dict[str, type] = {"hold_then_shrink": HoldThenShrink, "times_zoo": TimesZoo}
 
 
 @dataclass(frozen=True)
@@ -202,7 +215,12 @@ def hyperparameters(variant: Variant, env_id: str) -> dict[str, Any]:
 
     params = dict(load_hyperparameters(ROOT / "zoo_hyperparams" / f"{variant.algo}.yml", variant.algo, [env_id])[env_id])
     for key, value in variant.hyperparameters.items():
-        params[key] = {**params.get(key, {}), **value} if key == "policy_kwargs" else value
+        if isinstance(value, TimesZoo):
+            if key not in params:
+                raise StudyError(f"variant {variant.name}: {key} is a multiple of the zoo's, and {env_id}'s has none")
+            params[key] = value.of(params[key])
+        else:
+            params[key] = {**params.get(key, {}), **value} if key == "policy_kwargs" else value
     if variant.env_kwargs is not None:
         params["env_kwargs"] = dict(variant.env_kwargs)
     return params

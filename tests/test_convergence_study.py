@@ -28,7 +28,11 @@ def _as_snapshot(variant: Variant) -> dict:
     """``variant`` in the snapshot's form: its algorithm, every override (a schedule as data), the training envs'
     scripted-start kwargs, and whether it trains with the multi-step class or sb3-contrib's CG started at 0."""
     overrides = {
-        key: {"hold_then_shrink": vars(value)} if isinstance(value, study.HoldThenShrink) else value
+        key: {"hold_then_shrink": vars(value)}
+        if isinstance(value, study.HoldThenShrink)
+        else {"times_zoo": vars(value)}
+        if isinstance(value, study.TimesZoo)
+        else value
         for key, value in variant.hyperparameters.items()
     }
     if variant.env_kwargs is not None:
