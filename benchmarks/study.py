@@ -46,7 +46,7 @@ class TimesZoo:
 
     def of(self, zoo_value: Any) -> Any:
         value = zoo_value * self.factor
-        return max(int(round(value)), 1) if isinstance(zoo_value, int) else float(value)
+        return max(round(value), 1) if isinstance(zoo_value, int) else float(value)
 
 
 # a hyperparameter written {<name>: {kwargs}}: a schedule of the remaining progress, or a multiple of the zoo's value

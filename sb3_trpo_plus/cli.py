@@ -554,28 +554,6 @@ def plot(argv: Sequence[str]) -> Path:
     return output
 
 
-def evaluate(model: Any, env: Any, n_episodes: int) -> dict[str, Any]:
-    """Deterministic evaluation: mean / std return (original rewards) and success rate over ``n_episodes``."""
-    returns: list[float] = []
-    successes: list[float] = []
-    obs = env.reset()
-    episode_return = 0.0
-    while len(returns) < n_episodes:
-        action, _ = model.predict(obs, deterministic=True)
-        obs, _, done, info = env.step(action)
-        episode_return += float(info[0].get("episode", {}).get("r", 0.0)) if done[0] else 0.0
-        if done[0]:
-            returns.append(episode_return)
-            successes.append(float(info[0].get("is_success", False)))
-            episode_return = 0.0
-    return {
-        "episodes": n_episodes,
-        "mean_reward": float(np.mean(returns)),
-        "std_reward": float(np.std(returns)),
-        "success_rate": float(np.mean(successes)),
-    }
-
-
 def main_job(argv: Sequence[str]) -> dict[str, Any]:
     """``trpo-plus main``: train with the zoo hyperparameters, then evaluate, plot and film the result."""
     _headless()
@@ -597,7 +575,14 @@ def main_job(argv: Sequence[str]) -> dict[str, Any]:
 
     model, env, log_path = _load_trained(args.algo, args.env, str(logs), 0, False, 10_000 + args.seed, False)
     summary = {"env": args.env, "algo": args.algo, "seed": args.seed, "model": str(Path(log_path) / f"{args.env}.zip")}
-    summary.update(evaluate(model, env, args.eval_episodes))
+    from sb3_trpo_plus.evaluation import evaluate_agent
+
+    # the env was made with this seed; one seeded stream of episodes, as the command always evaluated
+    result = evaluate_agent(model, env, args.eval_episodes, seed=10_000 + args.seed, seed_every_episode=False)
+    summary.update(
+        {"episodes": result.episodes, "mean_reward": result.mean_return, "std_reward": result.std_return,
+         "success_rate": result.success_rate}
+    )  # fmt: skip
     env.close()
     summary_path = Path(log_path) / "evaluation.json"
     summary_path.write_text(json.dumps(summary, indent=2))
