@@ -29,10 +29,19 @@ __all__ = [
     "Reacher3DEnv",
     "ScriptedStarts",
     "WallReacher3DEnv",
+    "has_batch_engine",
     "make_batch_env",
 ]
 
 register_presets()
+
+
+def has_batch_engine(env_id: str) -> bool:
+    """Whether ``make_batch_env`` runs ``env_id`` (every registered id of this package, and no other)."""
+    if not isinstance(env_id, str):
+        raise TypeError(f"env_id must be a registered Gymnasium id (str), got {env_id!r}")
+    return env_id in ENV_IDS
+
 
 if TYPE_CHECKING:
     from grasp_envs.batch import BatchVecEnv, make_batch_env

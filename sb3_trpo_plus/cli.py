@@ -233,9 +233,9 @@ def train(argv: Sequence[str]) -> None:
         known.vec_env = "dummy"
     else:
         if known.vec_env is None:  # the same transitions as dummy, faster from a few envs on
-            known.vec_env = "batch" if known.env in grasp_envs.ENV_IDS else "dummy"
+            known.vec_env = "batch" if grasp_envs.has_batch_engine(known.env) else "dummy"
         if known.vec_env == "batch":
-            if known.env not in grasp_envs.ENV_IDS:
+            if not grasp_envs.has_batch_engine(known.env):
                 ids = ", ".join(grasp_envs.ENV_IDS)
                 parser.error(f"--vec-env batch runs the tasks of grasp_envs ({ids}), got {known.env}")
             from sb3_trpo_plus.zoo import batch_training_env

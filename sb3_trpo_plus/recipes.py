@@ -39,11 +39,23 @@ def recipe(env_id: str, algo: str = "trpo_plus") -> dict[str, Any]:
     return recipes[env_id]
 
 
-def make_model(env_id: str, algo: str = "trpo_plus", seed: int | None = None, **overrides: Any) -> OnPolicyAlgorithm:
-    """The model of ``env_id``'s recipe, as rl-zoo3 builds it: ``n_envs`` seeded envs (``DummyVecEnv``) with the
-    recipe's ``env_kwargs`` and ``env_wrapper`` (training aids included: these are training envs), Monitor with the
-    success flag, ``VecNormalize`` with the algorithm's discount where the recipe normalises, and the algorithm with
-    the recipe's hyperparameters (``lin_<x>`` schedules as linear schedules from ``x``).
+def make_model(
+    env_id: str,
+    algo: str = "trpo_plus",
+    seed: int | None = None,
+    *,
+    vec_env: str = "auto",
+    sim_threads: int = 1,
+    **overrides: Any,
+) -> OnPolicyAlgorithm:
+    """The model of ``env_id``'s recipe, as ``trpo-plus train`` builds it: ``n_envs`` seeded envs with the recipe's
+    ``env_kwargs`` and ``env_wrapper`` (training aids included: these are training envs), Monitor with the success
+    flag, ``VecNormalize`` with the algorithm's discount where the recipe normalises, and the algorithm with the
+    recipe's hyperparameters (``lin_<x>`` schedules as linear schedules from ``x``).
+
+    The envs: ``vec_env="auto"`` (the default) steps the tasks of ``grasp_envs`` on the batched engine
+    (``grasp_envs.make_batch_env``, physics on ``sim_threads`` threads: the transitions of ``DummyVecEnv``, faster)
+    and any other id in SB3's ``DummyVecEnv``; ``"batch"`` or ``"dummy"`` choose one.
 
     ``overrides`` replace any key of the recipe, run keys (``n_envs``, ``env_kwargs``, ``normalize``, ...) and
     constructor arguments alike (e.g. ``tensorboard_log="runs"``). Train for the recipe's budget with
@@ -53,15 +65,31 @@ def make_model(env_id: str, algo: str = "trpo_plus", seed: int | None = None, **
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecFrameStack, VecNormalize
 
+    import grasp_envs
+
+    if vec_env not in ("auto", "batch", "dummy"):
+        raise ValueError(f"vec_env must be 'auto', 'batch' or 'dummy', got {vec_env!r}")
+    if vec_env == "batch" and not grasp_envs.has_batch_engine(env_id):
+        raise ValueError(f"vec_env='batch' runs the tasks of grasp_envs ({', '.join(grasp_envs.ENV_IDS)}), got {env_id!r}")
     params = {**recipe(env_id, algo), **overrides}
-    env = make_vec_env(
-        env_id,
-        n_envs=int(params.get("n_envs", 1)),
-        seed=seed,
-        env_kwargs=params.get("env_kwargs"),
-        wrapper_class=_wrapper_chain(params.get("env_wrapper"), "env_wrapper"),
-        monitor_kwargs=params.get("monitor_kwargs"),
-    )
+    env: Any
+    if vec_env == "batch" or (vec_env == "auto" and grasp_envs.has_batch_engine(env_id)):
+        scripted = _scripted_starts(params.get("env_wrapper"))
+        env = grasp_envs.make_batch_env(
+            env_id, int(params.get("n_envs", 1)), seed=seed, n_threads=sim_threads,
+            info_keywords=(params.get("monitor_kwargs") or {}).get("info_keywords", ()),
+            wrapper_class=grasp_envs.ScriptedStarts if scripted is not None else None, wrapper_kwargs=scripted,
+            **(params.get("env_kwargs") or {}),
+        )  # fmt: skip
+    else:
+        env = make_vec_env(
+            env_id,
+            n_envs=int(params.get("n_envs", 1)),
+            seed=seed,
+            env_kwargs=params.get("env_kwargs"),
+            wrapper_class=_wrapper_chain(params.get("env_wrapper"), "env_wrapper"),
+            monitor_kwargs=params.get("monitor_kwargs"),
+        )
     vec_wrapper = _wrapper_chain(params.get("vec_env_wrapper"), "vec_env_wrapper")
     if vec_wrapper is not None:
         env = vec_wrapper(env)
@@ -83,6 +111,22 @@ def _schedule(key: str, value: Any) -> Any:
         initial = float(value.removeprefix("lin_"))
         return lambda progress_remaining: progress_remaining * initial
     return value
+
+
+def _scripted_starts(value: Any) -> dict[str, Any] | None:
+    """The ``ScriptedStarts`` options of a recipe's ``env_wrapper`` (None without one); the batched engine runs no
+    other per-env wrapper, so any other raises ``ValueError`` naming it."""
+    if value is None:
+        return None
+    entries = check_wrappers(value, "env_wrapper", base="env_wrapper")
+    names = [next(iter(entry)) if isinstance(entry, dict) else entry for entry in entries]
+    if names != ["grasp_envs.wrappers.ScriptedStarts"]:
+        raise ValueError(
+            f"the batched engine runs no per-env wrapper but grasp_envs.wrappers.ScriptedStarts (once); this recipe's "
+            f"env_wrapper is {names}: use vec_env='dummy'"
+        )
+    entry = entries[0]
+    return dict(next(iter(entry.values())) or {}) if isinstance(entry, dict) else {}
 
 
 def _wrapper_chain(value: Any, key: str) -> Callable[[Any], Any] | None:

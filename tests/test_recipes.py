@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import yaml
 
@@ -129,6 +130,7 @@ def test_make_model_builds_the_recipe_in_python() -> None:
     """``make_model`` gives the model ``trpo-plus train`` trains: the recipe's hyperparameters, envs and wrappers."""
     from stable_baselines3.common.vec_env import VecNormalize
 
+    from grasp_envs import BatchVecEnv
     from grasp_envs.wrappers import ScriptedStarts
     from sb3_trpo_plus import TRPOPlus, make_model, recipe
 
@@ -138,12 +140,37 @@ def test_make_model_builds_the_recipe_in_python() -> None:
     assert (model.gamma, model.cg_max_steps, model.cg_warm_start) == (params["gamma"], 25, True)
     env = model.get_env()
     assert isinstance(env, VecNormalize) and env.num_envs == params["n_envs"] and env.gamma == params["gamma"]
-    assert all(isinstance(e, ScriptedStarts) for e in env.venv.envs)  # type: ignore[attr-defined]
+    assert isinstance(env.venv, BatchVecEnv)  # the batched engine, the command's default for the tasks of grasp_envs
+    assert env.venv.env_is_wrapped(ScriptedStarts) == [True] * params["n_envs"]
     model.learn(2 * 16 * params["n_envs"])
     with pytest.raises(HyperparameterError, match="no recipe for 'CartPole-v1'"):
         make_model("CartPole-v1")
     with pytest.raises(ValueError, match="algo must be one of"):
         recipe(RECOMMENDED_GRASPER, algo="sac")
+
+
+def test_make_model_on_the_batched_engine_collects_what_dummy_vec_env_collects() -> None:
+    """The front door's batched engine (with the recipe's scripted starts) and SB3's DummyVecEnv: the same rollout."""
+    from sb3_trpo_plus import make_model
+
+    buffers = []
+    for vec_env in ("batch", "dummy"):
+        model = make_model(RECOMMENDED_GRASPER, seed=5, vec_env=vec_env, n_steps=120, batch_size=120, n_envs=4)
+        model.learn(120 * 4)
+        buffers.append(model.rollout_buffer)
+    for name in ("observations", "actions", "rewards", "episode_starts", "returns"):
+        np.testing.assert_array_equal(getattr(buffers[0], name), getattr(buffers[1], name), err_msg=name)
+    assert buffers[0].episode_starts[1:].any(), "no episode ended: the scripted starts were not exercised"
+
+
+def test_make_model_names_an_env_without_a_batched_engine() -> None:
+    from sb3_trpo_plus import make_model
+
+    with pytest.raises(ValueError, match="vec_env='batch' runs the tasks of grasp_envs"):
+        make_model("Pendulum-v1", vec_env="batch")
+    with pytest.raises(ValueError, match="vec_env must be"):
+        make_model("Pendulum-v1", vec_env="subproc")
+    assert type(make_model("Pendulum-v1").get_env()).__name__ == "DummyVecEnv"
 
 
 def test_shipped_recommended_agent_is_evaluated_without_training_aids() -> None:

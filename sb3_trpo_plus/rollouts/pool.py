@@ -84,7 +84,7 @@ class RolloutWorkers(VecEnv):
         import grasp_envs
 
         if info_keywords is None:
-            info_keywords = ("is_success",) if env_id in grasp_envs.ENV_IDS else ()
+            info_keywords = ("is_success",) if grasp_envs.has_batch_engine(env_id) else ()
 
         module, _, name = env_id.rpartition(":")  # gymnasium's "module:Env-v0": import the module that registers it
         if module:

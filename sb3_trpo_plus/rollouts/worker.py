@@ -59,7 +59,7 @@ class WorkerEnvs:
     def build(self) -> VecEnv:
         import grasp_envs
 
-        if self.env_id in grasp_envs.ENV_IDS:
+        if grasp_envs.has_batch_engine(self.env_id):
             from grasp_envs.wrappers import ScriptedStarts
 
             return grasp_envs.make_batch_env(
