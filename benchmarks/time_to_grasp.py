@@ -1,0 +1,176 @@
+"""How long until a policy lifts 90 % of held-out cubes? Training wall-clock to the first evaluation at 0.90.
+
+    python -m benchmarks.time_to_grasp --algo trpo_plus --seeds 0 1 2 3 4 --budget 300
+    python -m benchmarks.time_to_grasp --algo ppo --seeds 0 1 2 3 4 --budget 300
+    python -m benchmarks.time_to_grasp report            # table and plot of every folder under --out
+
+Each (algorithm, seed) trains the recipe of ``--env`` (``make_model``: zoo_hyperparams/<algo>.yml on the batched
+engine, ``--sim-threads`` physics threads; ``--set key=value`` overrides a recipe key, the value a YAML scalar)
+from the start of ``learn``. Every ``--eval-every`` env steps it pauses the clock and evaluates the deterministic
+policy on ``--eval-episodes`` held-out episodes of the env as registered (no training aids; env ``i`` reset with
+seed ``1,000,000 + i``, the same episodes at every evaluation, the training ``VecNormalize`` statistics frozen),
+then trains on until ``--budget`` seconds of training wall-clock have passed. The evaluation's own time is
+recorded beside, never counted. One CSV per run: ``<out>/<name>/seed<k>.csv`` (``--name``: default the algorithm).
+
+``report`` prints, per name, the median and every seed's training seconds (and env steps) to the first
+evaluation at or above 0.90, and whether it stays there to the end of the budget; the plot shows success against
+training wall-clock, one line per seed (``<out>/time_to_grasp.png``). Measure with nothing else running.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import platform
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "benchmarks" / "results" / "time_to_grasp"
+EVAL_SEED = 1_000_000
+TARGET = 0.90
+FIELDS = ("timesteps", "train_seconds", "eval_seconds", "success", "mean_return")
+
+
+def evaluate_held_out(model: Any, env_id: str, episodes: int, statistics: Any) -> tuple[float, float]:
+    """(success rate, mean return) of the deterministic policy on ``episodes`` held-out episodes: one batched
+    simulation per episode, env ``i`` reset with seed ``EVAL_SEED + i``, each counted at its first episode's end."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from grasp_envs import make_batch_env
+
+    env: Any = make_batch_env(env_id, episodes, seed=EVAL_SEED)
+    if statistics is not None:  # the training statistics, frozen; rewards stay the env's
+        frozen = VecNormalize(env, training=False, norm_reward=False, clip_obs=statistics.clip_obs, epsilon=statistics.epsilon)
+        frozen.obs_rms = statistics.obs_rms
+        env = frozen
+    observations = env.reset()
+    done = np.zeros(episodes, dtype=bool)
+    successes, returns = np.zeros(episodes), np.zeros(episodes)
+    while not done.all():
+        actions, _ = model.predict(observations, deterministic=True)
+        observations, _, dones, infos = env.step(actions)
+        for i in np.flatnonzero(dones & ~done):
+            successes[i] = float(infos[i].get("is_success", False))
+            returns[i] = float(infos[i]["episode"]["r"])
+        done |= dones
+    env.close()
+    return float(successes.mean()), float(returns.mean())
+
+
+def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any]) -> Path:
+    import torch as th
+
+    from sb3_trpo_plus import make_model
+
+    th.set_num_threads(1)
+    model = make_model(args.env, algo=algo, seed=seed, sim_threads=args.sim_threads, **overrides)
+    folder = args.out / (args.name or algo)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"seed{seed}.csv"
+    statistics = model.get_vec_normalize_env()
+    rows: list[dict[str, Any]] = []
+    trained = 0.0
+    while trained < args.budget:
+        start = time.perf_counter()
+        model.learn(args.eval_every, reset_num_timesteps=not rows)
+        trained += time.perf_counter() - start
+        start = time.perf_counter()
+        success, mean_return = evaluate_held_out(model, args.env, args.eval_episodes, statistics)
+        rows.append({"timesteps": model.num_timesteps, "train_seconds": round(trained, 2),
+                     "eval_seconds": round(time.perf_counter() - start, 2), "success": success,
+                     "mean_return": round(mean_return, 3)})  # fmt: skip
+        print(f"{algo} seed {seed}: {model.num_timesteps:>8} steps, {trained:6.1f} s, success {success:.2f}", flush=True)
+    with path.open("w", newline="") as file:
+        writer = csv.DictWriter(file, FIELDS)
+        writer.writeheader()
+        writer.writerows(rows)
+    settings = {"env": args.env, "algo": algo, "seed": seed, "budget": args.budget, "eval_every": args.eval_every,
+                "eval_episodes": args.eval_episodes, "sim_threads": args.sim_threads, "overrides": overrides,
+                "machine": {"cpu": platform.processor() or platform.machine(), "python": platform.python_version(),
+                            "torch": th.__version__}}  # fmt: skip
+    (folder / f"seed{seed}.json").write_text(json.dumps(settings, indent=1) + "\n")
+    env = model.get_env()
+    if env is not None:
+        env.close()
+    return path
+
+
+def first_at_target(rows: Sequence[dict[str, float]]) -> tuple[float, int, bool] | None:
+    """(training seconds, env steps) of the first evaluation at or above the target, and whether every later one
+    stays there; None where none reaches it."""
+    for index, row in enumerate(rows):
+        if row["success"] >= TARGET:
+            held = all(later["success"] >= TARGET for later in rows[index:])
+            return row["train_seconds"], int(row["timesteps"]), held
+    return None
+
+
+def read(path: Path) -> list[dict[str, float]]:
+    with path.open() as file:
+        return [{key: float(value) for key, value in row.items()} for row in csv.DictReader(file)]
+
+
+def report(out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = sorted(folder for folder in out.iterdir() if folder.is_dir())
+    fig, axes = plt.subplots(1, max(len(names), 1), figsize=(5 * max(len(names), 1), 3.6), squeeze=False)
+    for ax, folder in zip(axes[0], names, strict=False):
+        runs = {path.stem: read(path) for path in sorted(folder.glob("seed*.csv"))}
+        reached = {seed: first_at_target(rows) for seed, rows in runs.items()}
+        times = [r[0] for r in reached.values() if r is not None]
+        cells = [f"{seed}: {r[0]:.0f} s / {r[1]:,} steps{'' if r[2] else ' (not held)'}" if r else f"{seed}: not reached"
+                 for seed, r in reached.items()]  # fmt: skip
+        median = f"{np.median(times):.0f} s" if len(times) == len(runs) and times else "not every seed reached it"
+        print(f"{folder.name}: median {median}; " + "; ".join(cells))
+        for seed, rows in runs.items():
+            ax.plot([r["train_seconds"] for r in rows], [r["success"] for r in rows], marker=".", label=seed)
+        ax.axhline(TARGET, color="k", linestyle=":", linewidth=1)
+        ax.set_xlabel("training wall-clock (s)")
+        ax.set_ylabel("held-out success")
+        ax.set_title(folder.name)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "time_to_grasp.png", dpi=110)
+    print(f"plot: {out / 'time_to_grasp.png'}")
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("command", nargs="?", choices=("run", "report"), default="run")
+    parser.add_argument("--env", default="Grasper3D-v7")
+    parser.add_argument("--algo", default="trpo_plus", choices=("trpo_plus", "trpo", "ppo"))
+    parser.add_argument("--name", default=None, help="the results folder (default: the algorithm)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    parser.add_argument("--budget", type=float, default=300.0, help="training wall-clock seconds per run")
+    parser.add_argument("--eval-every", type=int, default=50_000)
+    parser.add_argument("--eval-episodes", type=int, default=50)
+    parser.add_argument("--sim-threads", type=int, default=1)
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="recipe overrides (YAML values)")
+    parser.add_argument("--out", type=Path, default=OUT)
+    args = parser.parse_args(argv)
+    if args.command == "report":
+        report(args.out)
+        return
+    overrides: dict[str, Any] = {}
+    for pair in args.set:
+        key, sep, text = pair.partition("=")
+        if not sep:
+            parser.error(f"--set takes KEY=VALUE, got {pair!r}")
+        overrides[key] = yaml.safe_load(text)
+    for seed in args.seeds:
+        print(f"wrote {run(args.algo, seed, args, overrides)}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,33 @@
+"""The time-to-grasp benchmark's bookkeeping (benchmarks/time_to_grasp.py): when a run reached the target, whether it
+held it, and the report over runs."""
+
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # benchmarks/ is a package beside the installed ones
+from benchmarks import time_to_grasp  # noqa: E402
+
+
+def _rows(successes: list[float]) -> list[dict[str, float]]:
+    return [{"timesteps": 50_000 * (i + 1), "train_seconds": 10.0 * (i + 1), "success": s} for i, s in enumerate(successes)]
+
+
+def test_first_evaluation_at_the_target_and_whether_it_held() -> None:
+    assert time_to_grasp.first_at_target(_rows([0.1, 0.5, 0.9, 0.96])) == (30.0, 150_000, True)
+    assert time_to_grasp.first_at_target(_rows([0.92, 0.88, 0.95])) == (10.0, 50_000, False)
+    assert time_to_grasp.first_at_target(_rows([0.1, 0.89])) is None
+
+
+def test_report_reads_every_run(tmp_path: Path, capsys) -> None:
+    folder = tmp_path / "trpo_plus"
+    folder.mkdir()
+    for seed, successes in ((0, [0.2, 0.9, 0.94]), (1, [0.1, 0.5, 0.91])):
+        with (folder / f"seed{seed}.csv").open("w") as file:
+            file.write("timesteps,train_seconds,eval_seconds,success,mean_return\n")
+            for row in _rows(successes):
+                file.write(f"{row['timesteps']},{row['train_seconds']},1.0,{row['success']},0\n")
+    time_to_grasp.report(tmp_path)
+    out = capsys.readouterr().out
+    assert "trpo_plus: median 25 s; seed0: 20 s / 100,000 steps; seed1: 30 s / 150,000 steps" in out
+    assert (tmp_path / "time_to_grasp.png").is_file()
