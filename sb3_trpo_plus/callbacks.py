@@ -3,10 +3,8 @@ Ctrl-C that stops cleanly and saves."""
 
 from __future__ import annotations
 
-import os
 import pickle
 import signal
-import tempfile
 import threading
 from collections import defaultdict
 from pathlib import Path
@@ -85,21 +83,10 @@ class EpisodeStats(BaseCallback):
 def save_vec_normalize(vec_normalize: VecNormalize, path: str | Path) -> None:
     """``VecNormalize.save``, atomically: a temporary file renamed over ``path`` once written, so that a crash or a
     full disk leaves the previous statistics intact (``VecNormalize.save`` writes in place)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as file:
-            pickle.dump(vec_normalize, file)  # what VecNormalize.save writes (its __getstate__ drops the venv)
-            file.flush()
-            os.fsync(file.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp_name, 0o666 & ~umask)
-        os.replace(tmp_name, path)
-    finally:
-        if os.path.exists(tmp_name):
-            os.unlink(tmp_name)
+    from sb3_trpo_plus.persistence import atomic_write
+
+    # what VecNormalize.save writes (its __getstate__ drops the venv)
+    atomic_write(path, lambda file: pickle.dump(vec_normalize, file))
 
 
 class StopTrainingOnInterrupt(BaseCallback):

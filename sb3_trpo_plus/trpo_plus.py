@@ -8,7 +8,6 @@ import math
 import os
 import pathlib
 import random
-import tempfile
 import time
 import warnings
 from collections import deque
@@ -32,6 +31,7 @@ from torch.nn import functional as F
 from sb3_trpo_plus.arguments import Rule, boolean, integer, number, optional
 from sb3_trpo_plus.baselines import LinearFeatureBaseline
 from sb3_trpo_plus.natural_gradient import detached_distribution
+from sb3_trpo_plus.persistence import atomic_write
 from sb3_trpo_plus.replay import (
     RolloutEvaluation,
     StoredRollout,
@@ -992,27 +992,7 @@ class TRPOPlus(TRPO):
             target = pathlib.Path(path)
             if target.suffix == "":
                 target = target.with_suffix(".zip")
-            target.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-            os.close(fd)
-            try:
-                # mkstemp makes the file private (0600); give it the mode a plain open() would, as SB3's save does
-                # (os.chmod, not os.fchmod, which Windows lacks before Python 3.13)
-                umask = os.umask(0)
-                os.umask(umask)
-                os.chmod(tmp_name, 0o666 & ~umask)
-                try:
-                    with open(tmp_name, "wb") as tmp_file:
-                        super().save(tmp_file, exclude=exclude, include=include)  # type: ignore[arg-type]
-                        tmp_file.flush()
-                        os.fsync(tmp_file.fileno())
-                    os.replace(tmp_name, target)
-                except OSError as error:  # e.g. a full disk: the previous file was never touched
-                    message = f"{error.strerror or error}: saving {target} failed; the previous file is unchanged"
-                    raise OSError(error.errno, message) from error
-            finally:
-                if os.path.exists(tmp_name):
-                    os.unlink(tmp_name)
+            atomic_write(target, lambda file: super(TRPOPlus, self).save(file, exclude=exclude, include=include))
         finally:
             self._rng_states = pending
 

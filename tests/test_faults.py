@@ -28,8 +28,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
-import sb3_trpo_plus.trpo_plus as trpo_plus_module
-from sb3_trpo_plus import TRPOPlus
+from sb3_trpo_plus import TRPOPlus, persistence
 from sb3_trpo_plus.agents import (
     RunFileError,
     load_agent,
@@ -309,9 +308,7 @@ def test_full_disk_keeps_the_previous_model_and_raises(tmp_path: Path, monkeypat
     model.save(path)
     before = path.read_bytes()
     model.learn(128)
-    monkeypatch.setattr(
-        trpo_plus_module, "open", lambda name, mode: DiskFullWriter(io.FileIO(name, mode), 4096), raising=False
-    )
+    monkeypatch.setattr(persistence, "open", lambda name, mode: DiskFullWriter(io.FileIO(name, mode), 4096), raising=False)
     with pytest.raises(OSError, match=r"model\.zip") as caught:
         model.save(path)
     assert caught.value.errno == errno.ENOSPC
@@ -328,8 +325,8 @@ def test_full_disk_keeps_the_previous_statistics(tmp_path: Path, monkeypatch: py
     before = path.read_bytes()
     env.reset()
     env.step(np.zeros((1, 1), dtype=np.float32))
-    monkeypatch.setattr(os, "fdopen", lambda fd, mode: DiskFullWriter(io.FileIO(fd, mode), 100))
-    with pytest.raises(OSError) as caught:
+    monkeypatch.setattr(persistence, "open", lambda name, mode: DiskFullWriter(io.FileIO(name, mode), 100), raising=False)
+    with pytest.raises(OSError, match=r"vecnormalize\.pkl") as caught:
         save_vec_normalize(env, path)
     monkeypatch.undo()
     assert caught.value.errno == errno.ENOSPC
