@@ -111,14 +111,14 @@ def zero_start_solver(
     try:
         return conjugate_gradient_solver(matrix_vector_dot_fn, b, max_iter=max_iter, residual_tol=residual_tol)
     finally:
-        th.randn_like = randn_like  # type: ignore[assignment]
+        th.randn_like = randn_like
 
 
 def use_zero_start_in_sb3_contrib_trpo() -> None:
     """Make sb3-contrib's TRPO (in this process) start its conjugate gradient at 0 (variants with ``zero_cg_start``)."""
     import sb3_contrib.trpo.trpo as sb3_contrib_trpo
 
-    sb3_contrib_trpo.conjugate_gradient_solver = zero_start_solver  # type: ignore[assignment]
+    sb3_contrib_trpo.conjugate_gradient_solver = zero_start_solver
 
 
 def add_run_arguments(parser: argparse.ArgumentParser, env_id: str, variant: str) -> None:

@@ -93,7 +93,7 @@ def run_job(
         if radius > 0 and "train/kl_divergence_loss" in values:
             overshoots.append(float(values["train/kl_divergence_loss"]) / radius)
 
-    model.train = train_and_record  # type: ignore[method-assign]
+    model.train = train_and_record
     # the CSV is the study's log; SB3's default logger (verbose 0, no TensorBoard) would make an empty folder
     # <tempdir>/SB3-<date> at every chunk's learn(): 25-40 per run
     model.set_logger(Logger(folder=None, output_formats=[]))
@@ -128,7 +128,7 @@ def run_job(
         # not the wrappers of train() and of the progress
         atomic_replace(lambda p: model.save(p, exclude=["train", "_update_current_progress_remaining"]), model_path)
         if config.normalize:
-            atomic_replace(lambda p: env.save(str(p)), stats_path)  # type: ignore[attr-defined]
+            atomic_replace(lambda p: env.save(str(p)), stats_path)
         append_row(folder / "progress.csv", row)
         if keep is not None:
             keep_checkpoint(folder, job_folder(keep / str(done), env_id, variant, seed))

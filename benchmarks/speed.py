@@ -98,7 +98,7 @@ class PhaseTimer:
             original_get = buffer.get
             marks: dict[str, float] = {}
 
-            def get(batch_size: int | None = None):  # type: ignore[no-untyped-def]
+            def get(batch_size: int | None = None):
                 if batch_size is not None and "critic" not in marks:
                     marks["critic"] = time.perf_counter()
                 return original_get(batch_size)

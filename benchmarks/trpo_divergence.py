@@ -87,7 +87,7 @@ def update_agreement(env_id: str, seed: int, updates: int) -> list[float]:
         step_plus, step_reference = _flat_parameters(plus) - before, _flat_parameters(reference) - before
         ratios.append(float(np.linalg.norm(step_reference - step_plus) / max(float(np.linalg.norm(step_plus)), 1e-12)))
 
-    plus.train = compared_train  # type: ignore[method-assign]
+    plus.train = compared_train
     plus.learn(plus.n_steps * plus.n_envs * updates)
     plus.env.close()
     return ratios

@@ -60,7 +60,7 @@ def measure(env_id: str, variant: str, steps: int, seed: int = 0) -> dict[str, A
         stds.append(float(after.stddev.mean()))
         logged.append(float(model.logger.name_to_value[logged_key]))
 
-    model.train = train_and_measure  # type: ignore[method-assign]
+    model.train = train_and_measure
     model.learn(steps)
     model.get_env().close()
     return {

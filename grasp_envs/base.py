@@ -96,19 +96,19 @@ class SimArrays:
 
     def instability_warnings(self) -> NDArray[np.int64]:
         """Per simulation, how many times MuJoCo has reset a diverging state (bad qpos, qvel, qacc or ctrl)."""
-        return self._warnings[:, INSTABILITY_WARNINGS].sum(axis=1, dtype=np.int64)  # type: ignore[no-any-return]
+        return self._warnings[:, INSTABILITY_WARNINGS].sum(axis=1, dtype=np.int64)
 
 
 def near_bonus(distance: Array, weight: float, scale: float) -> Array:
     """The reachers' precision term ``weight (1 - tanh(distance / scale))``: bounded in ``[0, weight]`` and steepest at
     the target, so that the last centimetres before it pay."""
-    return weight * (1.0 - np.tanh(distance / scale))  # type: ignore[no-any-return]
+    return weight * (1.0 - np.tanh(distance / scale))
 
 
 def norm(vectors: Array) -> Array:
     """Euclidean norm over the last axis (as a stack of dot products, so that each equals ``np.linalg.norm`` of the
     one vector: bit-equal results whatever the batch size)."""
-    return np.sqrt((vectors[..., None, :] @ vectors[..., :, None])[..., 0, 0])  # type: ignore[no-any-return]
+    return np.sqrt((vectors[..., None, :] @ vectors[..., :, None])[..., 0, 0])
 
 
 def check_near_bonus(weight: float, scale: float) -> None:
@@ -330,7 +330,7 @@ class ArmEnv(MujocoEnv, utils.EzPickle):
             )
         if not np.all(np.isfinite(action)):
             raise ValueError(f"{type(self).__name__}.step got a non-finite action: {action}")
-        return np.clip(action, self.action_space.low, self.action_space.high)  # type: ignore[no-any-return]
+        return np.clip(action, self.action_space.low, self.action_space.high)
 
     def _simulate(self, action: Array) -> bool:
         """Run ``frame_skip`` physics steps with the controls of ``action``; return whether the simulation became

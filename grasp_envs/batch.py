@@ -246,7 +246,7 @@ class BatchVecEnv(VecEnv):
         if len(where):  # put the physics back into a valid state, as the Gymnasium env does
             self.batch.reset(where)
         self._copy_derived(ids)
-        return unstable  # type: ignore[no-any-return]
+        return unstable
 
     def _start(self, ids: NDArray[np.int64]) -> None:
         """Draw and write the start states of ``ids``, each with its own generator."""
@@ -342,7 +342,7 @@ class BatchVecEnv(VecEnv):
         if not finite.all():
             i = int(np.flatnonzero(~finite)[0])
             raise ValueError(f"{type(self).__name__}.step got a non-finite action for env {i}: {actions[i]}")
-        return np.clip(actions, self.action_space.low, self.action_space.high)  # type: ignore[no-any-return]
+        return np.clip(actions, self.action_space.low, self.action_space.high)
 
     def step_wait(self) -> VecEnvStepReturn:
         if self._actions is None:
@@ -416,7 +416,7 @@ class BatchVecEnv(VecEnv):
                 self._render_kwargs.get("camera_name"), self._render_kwargs.get("visual_options", {}),
             )  # fmt: skip
         self.batch.get_data(i, self._render_data)  # with the derived fields of the last step, as MjData after mj_step
-        return self._renderers[i].render("rgb_array")  # type: ignore[no-any-return]
+        return self._renderers[i].render("rgb_array")
 
     def _indices(self, indices: VecEnvIndices) -> list[int]:
         return list(self._get_indices(indices))

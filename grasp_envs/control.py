@@ -71,13 +71,13 @@ def damped_least_squares(jacobian: Array, error: Array, damping: float = 1e-3) -
     ``jacobian`` is ``(n, m, k)``, ``error`` ``(n, m)``."""
     jjt = jacobian @ jacobian.transpose(0, 2, 1)
     solved = np.linalg.solve(jjt + damping * np.eye(jjt.shape[-1]), error[..., None])
-    return (jacobian.transpose(0, 2, 1) @ solved)[..., 0]  # type: ignore[no-any-return]
+    return (jacobian.transpose(0, 2, 1) @ solved)[..., 0]
 
 
 def damped_pseudo_inverse(jacobian: Array, damping: float = 1e-3) -> Array:
     """``J^T (J J^T + damping I)^{-1}`` per simulation, the matrix ``damped_least_squares`` applies to an error."""
     jjt = jacobian @ jacobian.transpose(0, 2, 1)
-    return jacobian.transpose(0, 2, 1) @ np.linalg.inv(jjt + damping * np.eye(jjt.shape[-1]))  # type: ignore[no-any-return]
+    return jacobian.transpose(0, 2, 1) @ np.linalg.inv(jjt + damping * np.eye(jjt.shape[-1]))
 
 
 def velocity_servo(sim: SimArrays, dofs: NDArray[np.int64], desired_velocity: Array) -> Array:
@@ -89,7 +89,7 @@ def velocity_servo(sim: SimArrays, dofs: NDArray[np.int64], desired_velocity: Ar
     gear = sim.model.actuator_gear[: len(dofs), 0]
     qvel = sim.qvel[:, dofs]
     torque = VELOCITY_GAIN * (desired_velocity - qvel) + sim.qfrc_bias[:, dofs] + qvel
-    return torque / gear  # type: ignore[no-any-return]
+    return torque / gear
 
 
 def reach(sim: SimArrays, site: int, goal: Array, dofs: NDArray[np.int64], speed: float = 8.0) -> Array:
@@ -145,4 +145,4 @@ def grip_down_velocity(sim: SimArrays, grip_velocity: Array, grip_priority: bool
         jacobian = np.concatenate([primary, 0.2 * down[:, None, :]], axis=1)
         error = np.concatenate([primary_error, 0.2 * down_error[:, None]], axis=1)
         velocity = damped_least_squares(jacobian, error, damping=1e-4)
-    return np.clip(velocity, -MAX_JOINT_SPEED, MAX_JOINT_SPEED)  # type: ignore[no-any-return]
+    return np.clip(velocity, -MAX_JOINT_SPEED, MAX_JOINT_SPEED)

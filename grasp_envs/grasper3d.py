@@ -213,7 +213,7 @@ class Grasper3DTask(ArmTask):
 
     def cube_height(self, sim: SimArrays) -> Array:
         """Height of the cube's bottom face above the floor, from the cube geom (not its body frame)."""
-        return sim.geom_xpos[:, self.cube_geom, 2] - CUBE_HALF_SIZE - FLOOR_Z  # type: ignore[no-any-return]
+        return sim.geom_xpos[:, self.cube_geom, 2] - CUBE_HALF_SIZE - FLOOR_Z
 
     def cube_axes(self, sim: SimArrays) -> Array:
         """The cube's x and z axes in the world frame (the first and last columns of its rotation matrix)."""
@@ -234,7 +234,7 @@ class Grasper3DTask(ArmTask):
         physics step)."""
         site = self.grip_site
         jacobian, _ = point_jacobians(sim, int(self.model.site_bodyid[site]), sim.site_xpos[:, site])
-        return (jacobian @ sim.qvel[..., None])[..., 0]  # type: ignore[no-any-return]
+        return (jacobian @ sim.qvel[..., None])[..., 0]
 
     def claw_cube_contacts(self, sim: SimArrays) -> dict[str, NDArray[np.int64]]:
         """Number of capsules of each claw half touching the cube."""
@@ -263,10 +263,10 @@ class Grasper3DTask(ArmTask):
         claw's hinge axis, each)."""
         if self.grasp_test == "between":
             t, offset = self.cube_off_claw_segment(sim)
-            return (t > 0.0) & (t < 1.0) & (norm(offset) < BETWEEN_TOLERANCE)  # type: ignore[no-any-return]
+            return (t > 0.0) & (t < 1.0) & (norm(offset) < BETWEEN_TOLERANCE)
         t, offset = self.cube_off_claw_segment_in_forearm_frame(sim)
         close = (np.abs(offset[:, 0]) <= PER_AXIS_TOLERANCE) & (np.abs(offset[:, 2]) <= PER_AXIS_TOLERANCE)
-        return (t > 0.0) & (t < 1.0) & close  # type: ignore[no-any-return]
+        return (t > 0.0) & (t < 1.0) & close
 
     def contact_summary(self, sim: SimArrays) -> dict[str, NDArray[np.int64]]:
         """All contact counts the reward, observation and success need, from one read of the contact sensors."""
@@ -284,7 +284,7 @@ class Grasper3DTask(ArmTask):
 
     def is_grasped(self, contacts: dict[str, NDArray[np.int64]]) -> Flags:
         touched = (contacts["right"] > 0) & (contacts["left"] > 0)
-        return touched if self.grasp_test == "touch" else touched & (contacts["between"] > 0)  # type: ignore[no-any-return]
+        return touched if self.grasp_test == "touch" else touched & (contacts["between"] > 0)
 
     def reach_distance(self, sim: SimArrays) -> Array:
         """The distance ``reward_reach`` shrinks (m): grip site to cube centre, or the thesis' claw terms
@@ -295,10 +295,10 @@ class Grasper3DTask(ArmTask):
         if self.reach_distance_kind == "grip":
             return norm(sim.site_xpos[:, self.grip_site] - cube)
         right, left = sim.site_xpos[:, self.claw_sites[0]], sim.site_xpos[:, self.claw_sites[1]]
-        return norm(right - cube) + norm(left - cube) - norm(left - right)  # type: ignore[no-any-return]
+        return norm(right - cube) + norm(left - cube) - norm(left - right)
 
     def success(self, sim: SimArrays) -> Flags:
-        return (self.cube_height(sim) >= self.lift_height) & self.is_grasped(self.contacts)  # type: ignore[no-any-return]
+        return (self.cube_height(sim) >= self.lift_height) & self.is_grasped(self.contacts)
 
     # ------------------------------------------------------------------ stepping
     def controls(self, sim: SimArrays, action: Array, ids: NDArray[np.int64] | None = None) -> Array:
@@ -311,7 +311,7 @@ class Grasper3DTask(ArmTask):
             target = np.clip(self.claw_target[rows] + self.claw_rate * claw, *CLAW_TARGET_RANGE)
             self.claw_target[rows] = target
             claw = (target - CLAW_OPEN_TARGET) / CLAW_SERVO_SLOPE
-        return np.clip(np.concatenate([arm, claw[:, None]], axis=1), self.ctrl_low, self.ctrl_high)  # type: ignore[no-any-return]
+        return np.clip(np.concatenate([arm, claw[:, None]], axis=1), self.ctrl_low, self.ctrl_high)
 
     # ------------------------------------------------------------------ reward
     def reward(self, sim: SimArrays, action: Array) -> tuple[Array, dict[str, Any]]:
@@ -336,7 +336,7 @@ class Grasper3DTask(ArmTask):
                 "reward_lift": np.where(lifted, 1000.0 + 1000.0 * height, 0.0),
             }  # fmt: skip
             info.update(terms)
-            return sum(terms.values()), info  # type: ignore[return-value]
+            return sum(terms.values()), info
         solved = grasped & (height >= self.lift_height)
         terms = {
             "reward_reach": self.reward_reach_weight * (1.0 - np.tanh(10.0 * self.reach_distance(sim))),
@@ -359,7 +359,7 @@ class Grasper3DTask(ArmTask):
             reward = reward + value
         info.update(terms)
         info.update(extra)
-        return reward, info  # type: ignore[return-value]
+        return reward, info
 
     def terminal(self, sim: SimArrays) -> Flags:
         if not self.terminate_on_success:

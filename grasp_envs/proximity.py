@@ -22,7 +22,7 @@ _TINY = 1e-12
 
 
 def _dot(a: Array, b: Array) -> Array:
-    return np.einsum("...i,...i->...", a, b)  # type: ignore[no-any-return]
+    return np.einsum("...i,...i->...", a, b)
 
 
 def segment_segment_distance(p1: Array, q1: Array, p2: Array, q2: Array) -> Array:
@@ -42,7 +42,7 @@ def segment_segment_distance(p1: Array, q1: Array, p2: Array, q2: Array) -> Arra
     s = np.where(a > _TINY, s, 0.0)
     t = np.clip(t, 0.0, 1.0)
     gap = (p1 + d1 * s[..., None]) - (p2 + d2 * t[..., None])
-    return np.sqrt(_dot(gap, gap))  # type: ignore[no-any-return]
+    return np.sqrt(_dot(gap, gap))
 
 
 def segment_box_separation(p: Array, q: Array, center: Array, rotation: Array, half_sizes: Array) -> Array:
@@ -52,12 +52,12 @@ def segment_box_separation(p: Array, q: Array, center: Array, rotation: Array, h
     local_q = np.einsum("...ji,...j->...i", rotation, q - center)
     low, high = np.minimum(local_p, local_q), np.maximum(local_p, local_q)
     gaps = np.maximum(np.maximum(low - half_sizes, -half_sizes - high), 0.0)
-    return gaps.max(axis=-1)  # type: ignore[no-any-return]
+    return gaps.max(axis=-1)
 
 
 def segment_plane_distance(p: Array, q: Array, point: Array, normal: Array) -> Array:
     """Signed height of the lower end of segment ``p q`` above a plane (negative: below it)."""
-    return np.minimum(_dot(p - point, normal), _dot(q - point, normal))  # type: ignore[no-any-return]
+    return np.minimum(_dot(p - point, normal), _dot(q - point, normal))
 
 
 def never_collide(model: mujoco.MjModel, geom1: int, geom2: int) -> bool:

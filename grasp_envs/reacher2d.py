@@ -59,7 +59,7 @@ class Reacher2DTask(ArmTask):
         return reward_dist + reward_ctrl + reward_near, info
 
     def success(self, sim: SimArrays) -> NDArray[np.bool_]:
-        return self.distance(sim) < self.success_distance  # type: ignore[no-any-return]
+        return self.distance(sim) < self.success_distance
 
     def observe(self, sim: SimArrays) -> NDArray[np.float64]:
         theta = sim.qpos[:, :2]

@@ -80,7 +80,7 @@ class Reacher3DTask(ArmTask):
         return info["reward_dist"] + info["reward_ctrl"] + info["reward_near"], info
 
     def success(self, sim: SimArrays) -> NDArray[np.bool_]:
-        return self.distance(sim) < self.success_distance  # type: ignore[no-any-return]
+        return self.distance(sim) < self.success_distance
 
     def observe(self, sim: SimArrays) -> NDArray[np.float64]:
         angles = sim.qpos[:, :4]
@@ -94,7 +94,7 @@ class Reacher3DTask(ArmTask):
 
     def initial_qpos(self, rng: np.random.Generator) -> NDArray[np.float64]:
         noise = self.reset_noise_scale
-        return self.init_qpos + rng.uniform(-noise, noise, size=self.model.nq)  # type: ignore[no-any-return]
+        return self.init_qpos + rng.uniform(-noise, noise, size=self.model.nq)
 
     def sample_start(self, rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         mocap_pos = self.default_mocap_pos.copy()

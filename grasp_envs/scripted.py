@@ -22,12 +22,12 @@ def reacher2d_policy(env: ArmEnv) -> NDArray[np.float64]:
     sim, fingertip = env.sim, int(env.model.site("fingertip").id)
     goal = sim.mocap_pos[:, 0].copy()
     goal[:, 2] = sim.site_xpos[:, fingertip, 2]
-    return np.clip(reach(sim, fingertip, goal, np.arange(2)), -1, 1)[0]  # type: ignore[no-any-return]
+    return np.clip(reach(sim, fingertip, goal, np.arange(2)), -1, 1)[0]
 
 
 def reacher3d_policy(env: ArmEnv) -> NDArray[np.float64]:
     sim = env.sim
-    return np.clip(reach(sim, int(env.model.site("palm").id), sim.mocap_pos[:, 0].copy(), np.arange(4)), -0.5, 0.5)[0]  # type: ignore[no-any-return]
+    return np.clip(reach(sim, int(env.model.site("palm").id), sim.mocap_pos[:, 0].copy(), np.arange(4)), -0.5, 0.5)[0]
 
 
 def wall_reacher3d_policy(env: ArmEnv) -> NDArray[np.float64]:
@@ -41,8 +41,8 @@ def wall_reacher3d_policy(env: ArmEnv) -> NDArray[np.float64]:
     if arm_up and (np.sign(target[0]) * palm[0] < 0.03 or abs(azimuth_error) > 0.2):
         wrapped = np.angle(np.exp(1j * qpos))
         desired = 6.0 * np.array([-wrapped[0], azimuth_error, -wrapped[2], -wrapped[3]])
-        return np.clip(velocity_servo(sim, np.arange(4), np.clip(desired, -6.0, 6.0)[None]), -0.5, 0.5)[0]  # type: ignore[no-any-return]
-    return np.clip(reach(sim, palm_site, target[None], np.arange(4)), -0.5, 0.5)[0]  # type: ignore[no-any-return]
+        return np.clip(velocity_servo(sim, np.arange(4), np.clip(desired, -6.0, 6.0)[None]), -0.5, 0.5)[0]
+    return np.clip(reach(sim, palm_site, target[None], np.arange(4)), -0.5, 0.5)[0]
 
 
 GRIP_COMMAND = 0.05  # a gentle squeeze: 5 N m on the claw holds the 14 g cube; full torque squirts it out
@@ -90,7 +90,7 @@ def grasper3d_actions(
         claw = np.where(claw > 0, SERVO_GRIP_COMMAND, -1.0)
     # with grip-velocity control the action is the grip velocity itself
     arm = approach / task.max_grip_speed if task.control == "grip_velocity" else grip_down_commands(sim, approach)
-    return np.clip(np.concatenate([arm, claw[:, None]], axis=1), action_low, action_high)  # type: ignore[no-any-return]
+    return np.clip(np.concatenate([arm, claw[:, None]], axis=1), action_low, action_high)
 
 
 def grasper3d_policy(env: ArmEnv, lift: bool = True, hold_height: float | None = None) -> NDArray[np.float64]:

@@ -53,7 +53,7 @@ class WallReacher3DTask(Reacher3DTask):
 
     def wall_contacts(self, sim: SimArrays) -> NDArray[np.int64]:
         """Contacts between the arm's links and the wall, per simulation."""
-        return self.contact_counts(sim).sum(axis=1).astype(np.int64)  # type: ignore[no-any-return]
+        return self.contact_counts(sim).sum(axis=1).astype(np.int64)
 
     def palm_to_wall_distance(self, sim: SimArrays) -> NDArray[np.float64]:
         """Euclidean distance from the palm to the wall box (0 inside)."""
@@ -71,7 +71,7 @@ class WallReacher3DTask(Reacher3DTask):
         return reward, info
 
     def success(self, sim: SimArrays) -> NDArray[np.bool_]:
-        return (self.distance(sim) < self.success_distance) & ~self.wall_touched  # type: ignore[no-any-return]
+        return (self.distance(sim) < self.success_distance) & ~self.wall_touched
 
     def observe(self, sim: SimArrays) -> NDArray[np.float64]:
         side = np.stack([self.target_side < 0, self.target_side > 0], axis=1).astype(np.float64)

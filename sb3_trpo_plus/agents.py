@@ -528,7 +528,7 @@ def load_normalization(path: str | Path) -> NormalizationStats:
         obs_mean, obs_var, obs_count = _rms_arrays(state["obs_rms"]) if state.get("norm_obs") else (None, None, None)
         ret_mean, ret_var, ret_count = _rms_arrays(state["ret_rms"])
         return NormalizationStats(
-            obs_mean, obs_var, obs_count, ret_mean, ret_var, ret_count,  # type: ignore[arg-type]
+            obs_mean, obs_var, obs_count, ret_mean, ret_var, ret_count,
             norm_obs=bool(state["norm_obs"]), norm_reward=bool(state["norm_reward"]),
             clip_obs=float(state["clip_obs"]), clip_reward=float(state["clip_reward"]), gamma=float(state["gamma"]),
             epsilon=float(state["epsilon"]), norm_obs_keys=state.get("norm_obs_keys"),

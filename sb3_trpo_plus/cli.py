@@ -418,8 +418,8 @@ def _validated_run_folders(env_id: str) -> Iterator[None]:
         """What rl-zoo3's ``create_test_env`` calls to unpickle the run's statistics."""
 
         @staticmethod
-        def load(load_path: str, venv: Any) -> VecNormalize:  # type: ignore[override]
-            return load_trusted_file(lambda: VecNormalize.load(load_path, venv), Path(load_path))  # type: ignore[no-any-return]
+        def load(load_path: str, venv: Any) -> VecNormalize:
+            return load_trusted_file(lambda: VecNormalize.load(load_path, venv), Path(load_path))
 
     enjoy_module.get_model_path = get_model_path
     zoo_utils.VecNormalize = NamingVecNormalize  # type: ignore[misc]

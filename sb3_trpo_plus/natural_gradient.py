@@ -161,7 +161,7 @@ def detached_distribution(distribution: Distribution) -> Distribution:
 
     anchor = copy.copy(distribution)
     inner = distribution.distribution
-    anchor.distribution = [detach(d) for d in inner] if isinstance(inner, list) else detach(inner)  # type: ignore[assignment]
+    anchor.distribution = [detach(d) for d in inner] if isinstance(inner, list) else detach(inner)
     return anchor
 
 

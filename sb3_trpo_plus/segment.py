@@ -189,15 +189,15 @@ class Segment:
 
 def _concatenate(parts: Sequence[Observation], axis: int) -> Observation:
     if isinstance(parts[0], dict):
-        return {key: np.concatenate([part[key] for part in parts], axis=axis) for key in parts[0]}  # type: ignore[index]
-    return np.concatenate(parts, axis=axis)  # type: ignore[arg-type]
+        return {key: np.concatenate([part[key] for part in parts], axis=axis) for key in parts[0]}
+    return np.concatenate([np.asarray(part) for part in parts], axis=axis)
 
 
 def _stack(rows: Sequence[Observation], like: Observation) -> Observation:
     """``rows`` stacked along a new first axis, in the dtype of ``like`` (arrays, or dicts of arrays)."""
     if isinstance(like, dict):
-        return {key: np.stack([row[key] for row in rows]).astype(like[key].dtype) for key in like}  # type: ignore[index]
-    return np.stack(rows).astype(like.dtype)  # type: ignore[arg-type]
+        return {key: np.stack([row[key] for row in rows]).astype(like[key].dtype) for key in like}
+    return np.stack([np.asarray(row) for row in rows]).astype(np.asarray(like).dtype)
 
 
 def _at(observation: Observation, index: Any) -> Observation:
@@ -226,13 +226,19 @@ class _Rows:
             else:
                 self.data = np.zeros((self.n, *np.shape(row)), np.asarray(row).dtype)
         if isinstance(self.data, dict):
-            for key, value in row.items():  # type: ignore[union-attr]
+            assert isinstance(row, dict)
+            for key, value in row.items():
                 self.data[key][index] = value
         else:
             self.data[index] = row
 
     def result(self) -> Observation:
         assert self.data is not None
+        return self.data
+
+    def array(self) -> np.ndarray:
+        """The rows of arrays (not dicts)."""
+        assert isinstance(self.data, np.ndarray)
         return self.data
 
 
@@ -334,7 +340,7 @@ def collect_segment(
         for t in range(n_steps):
             if sde_sample_freq is not None and sde_sample_freq > 0 and t % sde_sample_freq == 0:
                 policy.reset_noise(n_envs)
-            obs_tensor = obs_as_tensor(state.observation, policy.device)  # type: ignore[arg-type]
+            obs_tensor = obs_as_tensor(state.observation, policy.device)
             actions_t, values, log_probs = policy(obs_tensor)
             actions = actions_t.cpu().numpy()
             clipped = actions
@@ -351,7 +357,7 @@ def collect_segment(
             else:
                 new_raw, raw_reward = new_obs, rewards
                 if normalizer is not None:
-                    new_obs, rewards = normalizer.obs(new_obs), normalizer.reward(rewards)  # type: ignore[arg-type]
+                    new_obs, rewards = normalizer.obs(new_obs), normalizer.reward(rewards)
             if on_step is not None and not on_step(
                 StepLocals(t, obs_tensor, actions, values, log_probs, clipped, new_obs, rewards, dones, infos)
             ):
@@ -363,7 +369,7 @@ def collect_segment(
                 terminal = info.get("terminal_observation")
                 if terminal is not None and info.get("TimeLimit.truncated", False):
                     terminal_input = normalizer.obs(terminal) if normalizer is not None else terminal
-                    terminal_value = policy.predict_values(policy.obs_to_tensor(terminal_input)[0])[0]  # type: ignore[arg-type]
+                    terminal_value = policy.predict_values(policy.obs_to_tensor(terminal_input)[0])[0]
                     bootstrapped[idx] += gamma * terminal_value
                     raw_terminal = vec_normalize.unnormalize_obs(terminal) if vec_normalize is not None else terminal
                     truncated_steps.append((t, int(idx)))
@@ -386,12 +392,12 @@ def collect_segment(
             state.episode_starts = np.asarray(dones, dtype=bool).copy()
             state.episode_timesteps = np.where(dones, 0, state.episode_timesteps + 1)
             check_finite_observations(new_obs, source)
-        last_values = policy.predict_values(obs_as_tensor(state.observation, policy.device)).cpu().numpy().flatten()  # type: ignore[arg-type]
+        last_values = policy.predict_values(obs_as_tensor(state.observation, policy.device)).cpu().numpy().flatten()
     raw_observations[n_steps] = state.raw_observation
     episode_timesteps[n_steps] = state.episode_timesteps
     return Segment(
         observations=observations.result(), raw_observations=raw_observations.result(),
-        last_observation=_copy(state.observation), actions=actions_out.result(), rewards=rewards_out,  # type: ignore[arg-type]
+        last_observation=_copy(state.observation), actions=actions_out.array(), rewards=rewards_out,
         buffer_rewards=buffer_rewards, raw_rewards=raw_rewards, episode_starts=episode_starts, dones=dones_out,
         episode_timesteps=episode_timesteps, values=values_out, log_probs=log_probs_out,
         last_values=last_values.astype(np.float32), ended=ended,
@@ -402,7 +408,7 @@ def collect_segment(
 
 
 # ---------------------------------------------------------------------------------------------------- the buffer
-class _HoldsSegment:
+class _HoldsSegment(RolloutBuffer):
     """A rollout buffer filled from one :class:`Segment`, which it keeps (``segment``) for the update."""
 
     segment: Segment | None = None
@@ -410,28 +416,28 @@ class _HoldsSegment:
     def fill(self, segment: Segment) -> None:
         """Reset, take every step of ``segment`` (time-limit bootstraps included), and compute the returns and GAE
         advantages from its last values, as SB3's ``collect_rollouts`` fills the buffer step by step."""
-        buffer: Any = self
-        buffer.reset()
-        discrete = isinstance(buffer.action_space, spaces.Discrete)
+        self.reset()
+        discrete = isinstance(self.action_space, spaces.Discrete)
         for t in range(segment.n_steps):
             actions = segment.actions[t]
-            buffer.add(
-                _at(segment.observations, t),
+            observation: Any = _at(segment.observations, t)  # a dict of arrays for the Dict buffer
+            self.add(
+                observation,
                 actions.reshape(-1, 1) if discrete else actions,
                 segment.buffer_rewards[t],
                 segment.episode_starts[t],
                 th.as_tensor(segment.values[t]),
                 th.as_tensor(segment.log_probs[t]),
             )
-        buffer.compute_returns_and_advantage(last_values=th.as_tensor(segment.last_values), dones=segment.dones[-1])
+        self.compute_returns_and_advantage(last_values=th.as_tensor(segment.last_values), dones=segment.dones[-1])
         self.segment = segment
 
     def reset(self) -> None:
-        super().reset()  # type: ignore[misc]
+        super().reset()
         self.segment = None
 
 
-class SegmentRolloutBuffer(_HoldsSegment, RolloutBuffer):
+class SegmentRolloutBuffer(_HoldsSegment):
     """SB3's ``RolloutBuffer`` filled from a :class:`Segment` (``fill``), which it keeps as ``segment``."""
 
 

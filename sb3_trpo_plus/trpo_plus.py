@@ -435,7 +435,7 @@ class TRPOPlus(TRPO):
             self.rollout_buffer_class = SegmentDictRolloutBuffer if dict_space else SegmentRolloutBuffer
         super()._setup_model()
         self._update_target_kl()
-        self._actor_params = actor_parameters(self.policy)  # type: ignore[arg-type]
+        self._actor_params = actor_parameters(self.policy)
         memory = getattr(self, "rollout_memory", None)
         reuse = self.reuse
         capacity = reuse.n_batches - 1 if reuse is not None else self.replay_memory
@@ -501,7 +501,7 @@ class TRPOPlus(TRPO):
             segment = self._segment_from_env(env, callback, rollout_buffer, n_rollout_steps)
         if segment is None:  # the callback stopped training: the partial rollout is dropped, as in SB3
             return False
-        self._last_obs = segment.last_observation  # type: ignore[assignment]
+        self._last_obs = segment.last_observation
         self._last_episode_starts = segment.dones[-1]
         self._last_episode_timesteps = segment.episode_timesteps[-1].copy()
         rollout_buffer.fill(segment)
@@ -550,14 +550,14 @@ class TRPOPlus(TRPO):
         statistics are kept (None: the callback stopped training).
         """
         normalizer = Normalizer.of(vec_normalize)
-        segment = Segment.concatenate(pool.collect_segments(self.policy, n_rollout_steps, self.gamma, normalizer))  # type: ignore[arg-type]
+        segment = Segment.concatenate(pool.collect_segments(self.policy, n_rollout_steps, self.gamma, normalizer))
         n_envs = pool.num_envs
         raw_observations, observations = segment.raw_observations, segment.observations
         assert isinstance(raw_observations, np.ndarray) and isinstance(observations, np.ndarray)
         restarted = segment.restarted if segment.restarted is not None else np.zeros(n_envs, dtype=bool)
         if vec_normalize is not None and restarted.any():  # what VecNormalize.reset does for the reset envs
             if vec_normalize.training and vec_normalize.norm_obs:
-                vec_normalize.obs_rms.update(raw_observations[0][restarted])  # type: ignore[union-attr]
+                vec_normalize.obs_rms.update(raw_observations[0][restarted])
             vec_normalize.returns[restarted] = 0
         for t in range(n_rollout_steps):
             dones = segment.dones[t]
@@ -651,7 +651,7 @@ class TRPOPlus(TRPO):
             return self.linear_baseline.predict(observations, timesteps)
         with th.no_grad():
             obs_tensor = self.policy.obs_to_tensor(observations)[0]
-            return self.policy.predict_values(obs_tensor).cpu().numpy().reshape(-1)  # type: ignore[arg-type]
+            return self.policy.predict_values(obs_tensor).cpu().numpy().reshape(-1)
 
     def _reevaluate(
         self, segment: Segment, trace_ratios: Callable[[np.ndarray], np.ndarray] | None = None
@@ -700,7 +700,7 @@ class TRPOPlus(TRPO):
                 act_list.append(th.as_tensor(stored_actions, device=self.device))
                 logq_list.append(th.as_tensor(stored.log_probs.reshape(-1), device=self.device))
                 adv_list.append(th.as_tensor(evaluation.advantages.reshape(-1), device=self.device))
-            observations = th.cat(obs_list)  # type: ignore[arg-type]
+            observations = th.cat(obs_list)
             actions, sampling_log_prob, advantages = th.cat(act_list), th.cat(logq_list), th.cat(adv_list)
         if self.sub_sampling_factor > 1:
             k = self.sub_sampling_factor
@@ -739,7 +739,7 @@ class TRPOPlus(TRPO):
             advantages.append(th.as_tensor(evaluation.advantages.reshape(-1), device=self.device))
             returns.append(th.as_tensor(evaluation.returns.reshape(-1), device=self.device))
             sample_weights.append(th.full((segment.n_samples,), float(weights[age]), device=self.device))
-        all_observations, all_actions = th.cat(observations), th.cat(actions)  # type: ignore[arg-type]
+        all_observations, all_actions = th.cat(observations), th.cat(actions)
         all_sampling, all_weights = th.cat(sampling), th.cat(sample_weights)
         with th.no_grad():  # how far the current policy already is from the ones that collected the stored batches
             log_prob = self.policy.get_distribution(all_observations).log_prob(self.action_tensor(all_actions))
@@ -765,7 +765,7 @@ class TRPOPlus(TRPO):
 
         def ratios(flat_observations: np.ndarray) -> np.ndarray:
             with th.no_grad():
-                distribution = self.policy.get_distribution(self.policy.obs_to_tensor(flat_observations)[0])  # type: ignore[arg-type]
+                distribution = self.policy.get_distribution(self.policy.obs_to_tensor(flat_observations)[0])
                 log_prob = distribution.log_prob(self.action_tensor(actions))
             ratio = th.exp(th.clamp(log_prob - behaviour, -50.0, 50.0)).cpu().numpy()
             return np.minimum(ratio, self.reuse_trace_clip).reshape(segment.n_steps, segment.n_envs)
@@ -864,7 +864,7 @@ class TRPOPlus(TRPO):
         if not (self.replay_critic and replayed):
             if not (buffer.generator_ready and isinstance(buffer.observations, np.ndarray)):
                 for data in buffer.get(self.batch_size):
-                    yield data.observations, data.returns  # type: ignore[misc]
+                    yield data.observations, data.returns
                 return
             # RolloutBuffer.get's minibatches (one permutation per epoch) of the two fields the critic reads only
             total = buffer.buffer_size * buffer.n_envs
@@ -880,7 +880,7 @@ class TRPOPlus(TRPO):
         for evaluation in replayed:
             obs_list.append(self.policy.obs_to_tensor(evaluation.observations)[0])  # type: ignore[arg-type]
             ret_list.append(th.as_tensor(evaluation.returns.reshape(-1), device=self.device))
-        observations, returns = th.cat(obs_list), th.cat(ret_list)  # type: ignore[arg-type]
+        observations, returns = th.cat(obs_list), th.cat(ret_list)
         order = th.as_tensor(np.random.permutation(len(returns)), device=self.device)
         for start in range(0, len(returns), self.batch_size):
             idx = order[start : start + self.batch_size]
@@ -889,7 +889,7 @@ class TRPOPlus(TRPO):
     def _fit_linear_baseline(self, segment: Segment, replayed: Sequence[RolloutEvaluation]) -> float:
         assert self.linear_baseline is not None
         buffer = self.rollout_buffer
-        obs = buffer.observations.reshape(buffer.buffer_size * buffer.n_envs, -1)  # type: ignore[union-attr]
+        obs = buffer.observations.reshape(buffer.buffer_size * buffer.n_envs, -1)
         timesteps = segment.episode_timesteps[: segment.n_steps].reshape(-1)
         returns = buffer.returns.reshape(-1)
         if self.replay_critic:
@@ -914,7 +914,7 @@ class TRPOPlus(TRPO):
         )
         record("train/is_line_search_success", float(line_search.accepted))
         if hasattr(self.policy, "log_std"):
-            record("train/std", th.exp(self.policy.log_std).mean().item())  # type: ignore[operator]
+            record("train/std", th.exp(self.policy.log_std).mean().item())
         record("train/n_updates", self._n_updates, exclude="tensorboard")
         record("train/cg_iterations", step.cg_iterations)
         record("train/cg_residual", step.cg_residual)
@@ -997,7 +997,7 @@ class TRPOPlus(TRPO):
             self._rng_states = pending
 
     @classmethod
-    def load(  # type: ignore[override]
+    def load(
         cls: type[SelfTRPOPlus],
         path: str | pathlib.Path | io.BufferedIOBase,
         env: GymEnv | None = None,
@@ -1046,6 +1046,6 @@ def _update_statistics(vec_normalize: VecNormalize, raw_obs: np.ndarray, raw_rew
     vec_normalize.old_obs, vec_normalize.old_reward = raw_obs, raw_rewards
     if vec_normalize.training:
         if vec_normalize.norm_obs:
-            vec_normalize.obs_rms.update(raw_obs)  # type: ignore[union-attr]
+            vec_normalize.obs_rms.update(raw_obs)
         vec_normalize._update_reward(raw_rewards)
     vec_normalize.returns[dones] = 0

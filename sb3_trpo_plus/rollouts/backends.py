@@ -159,7 +159,7 @@ class _RayBackend(_Backend):
         self.actors: dict[int, Any] = {}
 
     def start(self, index: int, envs: WorkerEnvs, torch_seed: int | None) -> None:
-        actor = self.actor_class.options(  # type: ignore[attr-defined]
+        actor = self.actor_class.options(
             num_cpus=self.cpus_per_worker, scheduling_strategy="SPREAD", max_restarts=0, max_task_retries=0
         ).remote(index, envs, torch_seed)
         self.actors[index] = actor
