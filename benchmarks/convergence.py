@@ -1,7 +1,7 @@
 """Does replay memory / warm-started CG speed up learning? The thesis' experiments (section 5.3), resumable.
 
     python -m benchmarks.convergence run --envs Reacher2D-v0 --seeds 0 1 2 3 4 [--variants ...] [--jobs 2]
-    python -m benchmarks.convergence report          # figures, tables, rliable -> docs/results.md
+    python -m benchmarks.convergence report          # figures, tables, rliable -> docs/results-tables.md (+ results.md block)
     python -m benchmarks.convergence agents          # best TRPOPlus run per env -> trained_agents/
 
 The envs and the variants are data (benchmarks/study.yml, read by benchmarks/study.py): TRPOPlus plain (k = 0, zero
@@ -70,7 +70,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     job.add_argument("--variant", required=True, choices=list(VARIANTS))
     job.add_argument("--seed", type=int, required=True)
     job.add_argument("--steps", type=int, required=True)
-    report = sub.add_parser("report", help="figures, tables and rliable aggregates into docs/results.md")
+    report = sub.add_parser(
+        "report", help="figures, tables and rliable aggregates into docs/results-tables.md and docs/results.md's block"
+    )
     report.add_argument("--docs", default=str(ROOT / "docs" / "results.md"))
     agents = sub.add_parser("agents", help="export the best TRPOPlus run of each env to trained_agents/")
     agents.add_argument("--envs", nargs="+", default=list(BUDGETS), choices=list(BUDGETS))

@@ -3,6 +3,7 @@ each other and with the envs, its jobs resume and branch, its protocol reads the
 
 import ast
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -743,5 +744,66 @@ def test_target_table_counts_a_budgets_last_evaluation_past_it_as_within() -> No
 def test_the_results_page_shows_the_shipped_agents_as_the_report_writes_them() -> None:
     """docs/results.md's agents section is ``report.agents_section`` of trained_agents/agents.json, word for word."""
     text = (report.ROOT / "docs" / "results.md").read_text()
-    shown = text[text.index("### Trained agents") : text.index(report.END)].rstrip("\n").split("\n")
+    shown = text[text.index("## Trained agents") : text.index(report.END)].rstrip("\n").split("\n")
     assert shown == report.agents_section(report.ROOT / "trained_agents" / "agents.json")[:-1]
+
+
+def test_the_generated_tables_page_says_so_and_the_results_page_links_each_of_its_sections() -> None:
+    """docs/results-tables.md opens with the report's header (generated, by which command); every link of the
+    results page's generated index names a heading of that page."""
+    docs = report.ROOT / "docs"
+    tables = (docs / report.TABLES_PAGE).read_text()
+    assert tables.startswith("\n".join(report.tables_header()) + "\n")
+    anchors = {report.anchor(line.lstrip("#").strip()) for line in tables.split("\n") if line.startswith("#")}
+    text = (docs / "results.md").read_text()
+    block = text[text.index(report.BEGIN) : text.index(report.END)]
+    links = re.findall(rf"\]\({re.escape(report.TABLES_PAGE)}#([^)]+)\)", block)
+    assert len(links) > len(report.BUDGETS) and set(links) <= anchors
+
+
+def test_the_anchors_are_those_the_docs_give_the_headings() -> None:
+    toc = pytest.importorskip("markdown.extensions.toc")
+    for heading in ("Reacher2D-v0", "Aggregate (rliable)", "Reacher2D-v1, 10 seeds", "Grasper3D-v6 (ready pose)"):
+        assert report.anchor(heading) == toc.slugify(heading, "-")
+
+
+@pytest.mark.filterwarnings("ignore:Mean of empty slice")  # no diagnostics columns in these rows
+def test_the_report_writes_the_tables_page_whole_and_only_the_block_of_the_results_page(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The generated tables go to results-tables.md (header, per env, aggregates); results.md keeps its findings and
+    gets the index of that page and the agents section between its markers."""
+    out, docs = tmp_path / "runs", tmp_path / "docs"
+    folder = out / "Reacher2D-v0" / "plain" / "seed3"
+    folder.mkdir(parents=True)
+    columns = ["timesteps", "train_seconds", "eval_success", "eval_return"]
+    rows = [",".join(columns), "150000,20.0,0.5,-5.0", "300000,40.0,0.95,-4.0"]
+    (folder / "progress.csv").write_text("\n".join(rows) + "\n")
+    docs.mkdir()
+    findings = docs / "results.md"
+    findings.write_text(f"# Results\n\nA finding.\n\n{report.BEGIN}\nold\n{report.END}\n\nAfter.\n")
+    monkeypatch.setattr(report, "BUDGETS", {"Reacher2D-v0": 300_000, "Reacher3D-v0": 1_000_000})
+    monkeypatch.setattr(report, "rliable_section", lambda *args, **kwargs: ["(aggregates)"])
+    monkeypatch.setattr(report, "ROOT", tmp_path)  # no trained_agents/: no agents section
+    report.write_report(out, findings)
+    tables = (docs / "results-tables.md").read_text()
+    assert tables.startswith("\n".join(report.tables_header()))
+    assert "## Reacher2D-v0\n\nBudget 300,000 env steps; seeds 3;" in tables
+    assert "| TRPOPlus plain | 1 | 0.95 ± 0.00 | 0.95 ± 0.00 | -4.00 ± 0.00 | 0.30M (1/1) | 40s (1/1) | 40 ± 0 s |" in tables
+    assert "![Reacher2D-v0 learning curves](images/results_Reacher2D-v0.png)" in tables
+    assert "## Reacher3D-v0\n\nNo finished runs yet (budget 1,000,000 steps)." in tables
+    assert "## Aggregate (rliable)\n\n(aggregates)\n" in tables
+    assert (docs / "images" / "results_Reacher2D-v0.png").exists()
+    assert findings.read_text() == (
+        f"# Results\n\nA finding.\n\n{report.BEGIN}\n| env | budget (env steps) | seeds |\n|---|---|---|\n"
+        "| [Reacher2D-v0](results-tables.md#reacher2d-v0) | 300,000 | 3 |\n"
+        "| [Reacher3D-v0](results-tables.md#reacher3d-v0) | 1,000,000 | no run to the budget yet |\n\n"
+        "rliable aggregates: [over the envs with 5 finished seeds of every variant]"
+        "(results-tables.md#aggregate-rliable).\n\n"
+        f"{report.END}\n\nAfter.\n"
+    )
+
+
+def test_seed_ranges() -> None:
+    assert report._seed_ranges([3, 0, 1, 2, 7, 9, 10]) == "0-3, 7, 9-10"
+    assert report._seed_ranges([5]) == "5"
