@@ -40,6 +40,7 @@ from benchmarks.study import (
     BUDGETS,
     COMPARISONS,
     LABELS,
+    RETURN_TARGETS,
     ROOT,
     STUDY_VARIANTS,
     TARGET_HELD,
@@ -75,10 +76,18 @@ def complete_runs(out: Path, env_id: str, variant: str) -> dict[int, list[dict[s
     return runs
 
 
-def steps_to_target(rows: list[dict[str, float]], target: float) -> tuple[float, float]:
-    """(timesteps, training seconds) of the first evaluation with success >= target; nan if never."""
+def target_of(env_id: str) -> tuple[str, float]:
+    """The evaluation column an env's target is read in and its value: the success rate, or for a task without a
+    success flag (Gymnasium's locomotion) the return."""
+    if env_id in TARGETS:
+        return "eval_success", TARGETS[env_id]
+    return "eval_return", RETURN_TARGETS[env_id]
+
+
+def steps_to_target(rows: list[dict[str, float]], target: float, key: str = "eval_success") -> tuple[float, float]:
+    """(timesteps, training seconds) of the first evaluation with ``key`` >= target; nan if never."""
     for row in rows:
-        if row["eval_success"] >= target:
+        if row[key] >= target:
             return row["timesteps"], row["train_seconds"]
     return float("nan"), float("nan")
 
@@ -109,7 +118,8 @@ def figure(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]], path
             ax.fill_between(grid, mean - std, mean + std, color=color, alpha=0.2)
     axes[0].set_ylabel(f"evaluation return ({EVAL_EPISODES} episodes)")
     axes[1].set_ylabel("evaluation success rate")
-    axes[1].axhline(TARGETS[env_id], color="k", linestyle=":", linewidth=1)
+    key, target = target_of(env_id)
+    axes[0 if key == "eval_return" else 1].axhline(target, color="k", linestyle=":", linewidth=1)
     axes[1].set_ylim(-0.05, 1.05)
     for ax in axes:
         ax.set_xlabel("env steps")
@@ -137,7 +147,9 @@ def _median_reached(values: list[float], scale: float, unit: str) -> str:
 
 
 def tables(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]) -> list[str]:
-    target = TARGETS[env_id]
+    key, target = target_of(env_id)
+    if key == "eval_return":
+        return return_tables(runs, target)
     lines = [
         f"| variant | seeds | final success | best success | final return | steps to {target:.0%} | "
         f"train time to {target:.0%} | train time (total) |",
@@ -151,6 +163,29 @@ def tables(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]) -> l
         lines.append(
             f"| {LABELS[variant]} | {len(rows)} | {_fmt([r[-1]['eval_success'] for r in rows])} | "
             f"{_fmt([max(x['eval_success'] for x in r) for r in rows])} | {_fmt([r[-1]['eval_return'] for r in rows])} | "
+            f"{_median_reached([s for s, _ in reached], 1e6, 'M')} | {_median_reached([t for _, t in reached], 1, 's')} | "
+            f"{_fmt([r[-1]['train_seconds'] for r in rows], 0)} s |"
+        )
+    return lines
+
+
+def return_tables(runs: dict[str, dict[int, list[dict[str, float]]]], target: float) -> list[str]:
+    """The table of a task scored by its return: final and best evaluation return, the area under the return curve
+    (the mean over the evaluations: sample efficiency), and the steps and training time to ``target``."""
+    lines = [
+        f"| variant | seeds | final return | best return | return area | steps to {target:g} | train time to {target:g} "
+        "| train time (total) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for variant, seeds in runs.items():
+        if not seeds:
+            continue
+        rows = list(seeds.values())
+        reached = [steps_to_target(r, target, "eval_return") for r in rows]
+        lines.append(
+            f"| {LABELS[variant]} | {len(rows)} | {_fmt([r[-1]['eval_return'] for r in rows], 0)} | "
+            f"{_fmt([max(x['eval_return'] for x in r) for r in rows], 0)} | "
+            f"{_fmt([float(np.mean([x['eval_return'] for x in r])) for r in rows], 0)} | "
             f"{_median_reached([s for s, _ in reached], 1e6, 'M')} | {_median_reached([t for _, t in reached], 1, 's')} | "
             f"{_fmt([r[-1]['train_seconds'] for r in rows], 0)} s |"
         )
@@ -412,17 +447,15 @@ def write_report(out: Path, docs: Path, tables_page: Path | None = None) -> None
             "",
             *tables(env_id, runs),
             "",
-            "The target, seed by seed:",
-            "",
-            *target_table(env_id, runs, out),
-            "",
+            *(["The target, seed by seed:", "", *target_table(env_id, runs, out), ""] if env_id in TARGETS else []),
             "Per-update diagnostics (mean over each run's updates, then mean ± std over seeds):",
             "",
             *diagnostics_table(runs),
             "",
         ]
     aggregates = [("over the envs with 5 finished seeds of every variant", "Aggregate (rliable)")]
-    body += ["## Aggregate (rliable)", "", *rliable_section(all_runs), ""]
+    scored_by_success = {env_id: runs for env_id, runs in all_runs.items() if env_id in TARGETS}
+    body += ["## Aggregate (rliable)", "", *rliable_section(scored_by_success), ""]
     for env_id, runs in all_runs.items():  # the envs with 10 seeds of every study variant, on their own
         if min(len(runs.get(v, {})) for v in STUDY_VARIANTS) >= 10:
             pairs = [(comparison.variant, comparison.baseline) for comparison in COMPARISONS]  # study.yml's

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import gymnasium as gym
+import numpy as np
 import pytest
 
 import grasp_envs  # noqa: F401  (registers the envs)
@@ -807,3 +808,25 @@ def test_the_report_writes_the_tables_page_whole_and_only_the_block_of_the_resul
 def test_seed_ranges() -> None:
     assert report._seed_ranges([3, 0, 1, 2, 7, 9, 10]) == "0-3, 7, 9-10"
     assert report._seed_ranges([5]) == "5"
+
+
+def test_a_task_without_a_success_flag_is_tabled_by_its_return() -> None:
+    """Hopper-v5 has a return target: its table shows returns, the area under the return curve and the steps to the
+    target return, and it joins no success aggregate."""
+    assert report.target_of("Hopper-v5") == ("eval_return", study.RETURN_TARGETS["Hopper-v5"])
+    assert report.target_of("Reacher2D-v1") == ("eval_success", study.TARGETS["Reacher2D-v1"])
+    target = study.RETURN_TARGETS["Hopper-v5"]
+
+    def rows(returns: list[float]) -> list[dict[str, float]]:
+        return [{"timesteps": 40_000.0 * (i + 1), "train_seconds": 10.0 * (i + 1), "eval_return": r, "eval_success": 0.0}
+                for i, r in enumerate(returns)]  # fmt: skip
+
+    runs = {"trpo": {0: rows([100.0, target + 1, 900.0]), 1: rows([100.0, 200.0, 300.0])}, "ppo": {}}
+    lines = report.tables("Hopper-v5", runs)
+    assert lines[0].startswith(f"| variant | seeds | final return | best return | return area | steps to {target:g} |")
+    best, area = _mean_std(target + 1, 300.0), _mean_std((1000 + target + 1) / 3, 200.0)
+    assert lines[2] == f"| {study.LABELS['trpo']} | 2 | 600 ± 300 | {best} | {area} | 0.08M (1/2) | 20s (1/2) | 30 ± 0 s |"
+
+
+def _mean_std(a: float, b: float) -> str:
+    return f"{np.mean([a, b]):.0f} ± {np.std([a, b]):.0f}"
