@@ -22,7 +22,9 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import DictRolloutBuffer, RolloutBuffer
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.utils import obs_as_tensor
-from stable_baselines3.common.vec_env import VecEnv, VecNormalize, unwrap_vec_normalize
+from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
+
+from sb3_trpo_plus.normalization import NormalizationStats
 
 Observation = np.ndarray | dict[str, np.ndarray]
 
@@ -52,46 +54,6 @@ def check_finite_observations(observations: Any, source: str) -> None:
 
 
 # ---------------------------------------------------------------------------------------------------- records
-@dataclass(frozen=True)
-class Normalizer:
-    """A frozen copy of a ``VecNormalize``'s statistics and settings: its ``normalize_obs`` / ``normalize_reward``."""
-
-    obs_mean: np.ndarray
-    obs_var: np.ndarray
-    ret_var: float
-    epsilon: float
-    clip_obs: float
-    clip_reward: float
-    norm_obs: bool
-    norm_reward: bool
-
-    @classmethod
-    def of(cls, vec_normalize: VecNormalize | None) -> Normalizer | None:
-        if vec_normalize is None:
-            return None
-        if isinstance(vec_normalize.obs_rms, dict):
-            raise ValueError("rollout workers normalise array observations; this VecNormalize has dict statistics")
-        return cls(
-            obs_mean=vec_normalize.obs_rms.mean.copy(), obs_var=vec_normalize.obs_rms.var.copy(),
-            ret_var=float(vec_normalize.ret_rms.var), epsilon=float(vec_normalize.epsilon),
-            clip_obs=float(vec_normalize.clip_obs), clip_reward=float(vec_normalize.clip_reward),
-            norm_obs=bool(vec_normalize.norm_obs), norm_reward=bool(vec_normalize.norm_reward),
-        )  # fmt: skip
-
-    def obs(self, observations: np.ndarray) -> np.ndarray:
-        if not self.norm_obs:
-            return observations
-        normalized = np.clip(
-            (observations - self.obs_mean) / np.sqrt(self.obs_var + self.epsilon), -self.clip_obs, self.clip_obs
-        )
-        return normalized.astype(np.float32)
-
-    def reward(self, rewards: np.ndarray) -> np.ndarray:
-        if self.norm_reward:
-            rewards = np.clip(rewards / np.sqrt(self.ret_var + self.epsilon), -self.clip_reward, self.clip_reward)
-        return rewards.astype(np.float32)
-
-
 @dataclass
 class Segment:
     """``n_steps`` x ``n_envs`` transitions of one policy; arrays are indexed ``[step, env]``.
@@ -100,7 +62,7 @@ class Segment:
     elsewhere are shown (``ended``), and what the replay memory needs to evaluate it again under later statistics
     and value functions (the ``raw_*`` fields, ``episode_timesteps`` and the truncations).
 
-    :param observations: the policy's inputs (as ``VecNormalize`` gave them, or normalised with a :class:`Normalizer`)
+    :param observations: the policy's inputs (as ``VecNormalize`` gave them, or normalised with frozen ``NormalizationStats``)
     :param raw_observations: the envs' own observations, ``n_steps + 1`` of them (the last: after the last step)
     :param last_observation: the policy's input after the last step
     :param actions: the policy's actions (as sampled, before clipping to the action space)
@@ -291,7 +253,7 @@ def collect_segment(
     state: LoopState,
     *,
     gamma: float,
-    normalizer: Normalizer | None = None,
+    normalizer: NormalizationStats | None = None,
     on_step: Callable[[StepLocals], bool] | None = None,
     sde_sample_freq: int | None = None,
     source: str | None = None,
@@ -303,8 +265,8 @@ def collect_segment(
     :param env: the VecEnv; a ``VecNormalize`` in it (the learner's) normalises and updates its statistics at every
         step, and the segment's raw observations and rewards are its originals
     :param gamma: the discount of the time-limit bootstraps
-    :param normalizer: frozen statistics to normalise the raw observations and rewards of a bare ``env`` with
-        (rollout workers); None: the policy sees what ``env`` returns
+    :param normalizer: frozen statistics (``NormalizationStats.of(vec_normalize)``) to normalise the raw observations
+        and rewards of a bare ``env`` with (rollout workers); None: the policy sees what ``env`` returns
     :param on_step: called after each ``env.step`` with the step's locals, before anything is stored; returning
         False stops the loop (SB3's ``callback.on_step``)
     :param sde_sample_freq: with gSDE, the policy's noise is drawn again every that many steps (SB3's
@@ -357,7 +319,7 @@ def collect_segment(
             else:
                 new_raw, raw_reward = new_obs, rewards
                 if normalizer is not None:
-                    new_obs, rewards = normalizer.obs(new_obs), normalizer.reward(rewards)
+                    new_obs, rewards = normalizer.normalize_obs(new_obs), normalizer.normalize_reward(rewards)
             if on_step is not None and not on_step(
                 StepLocals(t, obs_tensor, actions, values, log_probs, clipped, new_obs, rewards, dones, infos)
             ):
@@ -368,7 +330,7 @@ def collect_segment(
                 info = infos[idx]
                 terminal = info.get("terminal_observation")
                 if terminal is not None and info.get("TimeLimit.truncated", False):
-                    terminal_input = normalizer.obs(terminal) if normalizer is not None else terminal
+                    terminal_input = normalizer.normalize_obs(terminal) if normalizer is not None else terminal
                     terminal_value = policy.predict_values(policy.obs_to_tensor(terminal_input)[0])[0]
                     bootstrapped[idx] += gamma * terminal_value
                     raw_terminal = vec_normalize.unnormalize_obs(terminal) if vec_normalize is not None else terminal

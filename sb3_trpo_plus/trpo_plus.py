@@ -31,6 +31,7 @@ from torch.nn import functional as F
 from sb3_trpo_plus.arguments import Rule, boolean, integer, number, optional
 from sb3_trpo_plus.baselines import LinearFeatureBaseline
 from sb3_trpo_plus.natural_gradient import detached_distribution
+from sb3_trpo_plus.normalization import NormalizationStats
 from sb3_trpo_plus.persistence import atomic_write
 from sb3_trpo_plus.replay import (
     RolloutEvaluation,
@@ -41,7 +42,6 @@ from sb3_trpo_plus.reuse import ReuseWeights, reuse_weights
 from sb3_trpo_plus.rollouts import RolloutWorkers, buried_rollout_workers, rollout_workers
 from sb3_trpo_plus.segment import (
     LoopState,
-    Normalizer,
     Segment,
     SegmentDictRolloutBuffer,
     SegmentRolloutBuffer,
@@ -549,7 +549,7 @@ class TRPOPlus(TRPO):
         ``log_probs``; ``infos`` hold the dicts of the episodes that ended, ``{}`` for the others) and the episode
         statistics are kept (None: the callback stopped training).
         """
-        normalizer = Normalizer.of(vec_normalize)
+        normalizer = NormalizationStats.of(vec_normalize)
         segment = Segment.concatenate(pool.collect_segments(self.policy, n_rollout_steps, self.gamma, normalizer))
         n_envs = pool.num_envs
         raw_observations, observations = segment.raw_observations, segment.observations
@@ -565,7 +565,7 @@ class TRPOPlus(TRPO):
             for idx, info in segment.ended[t]:
                 terminal = info.get("terminal_observation")
                 if normalizer is not None and terminal is not None:  # as VecNormalize gives it to SB3
-                    info = {**info, "terminal_observation": normalizer.obs(terminal)}
+                    info = {**info, "terminal_observation": normalizer.normalize_obs(terminal)}
                 infos[idx] = info
             if vec_normalize is not None:
                 _update_statistics(vec_normalize, raw_observations[t + 1], segment.raw_rewards[t], dones)

@@ -11,7 +11,8 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from sb3_trpo_plus import TRPOPlus
-from sb3_trpo_plus.segment import LoopState, Normalizer, Segment, SegmentRolloutBuffer, StepLocals, collect_segment
+from sb3_trpo_plus.normalization import NormalizationStats
+from sb3_trpo_plus.segment import LoopState, Segment, SegmentRolloutBuffer, StepLocals, collect_segment
 
 
 def _pendulum(n_envs: int = 2, max_episode_steps: int = 15) -> VecNormalize:
@@ -79,7 +80,7 @@ def test_a_step_that_returns_false_stops_the_loop() -> None:
 
 def test_a_normalizer_with_a_vec_normalize_env_is_refused() -> None:
     env = _pendulum()
-    normalizer = Normalizer.of(env)
+    normalizer = NormalizationStats.of(env)
     state = LoopState.after_reset(env.reset())
     with pytest.raises(ValueError, match="normalises itself"):
         collect_segment(_policy(env), env, 2, state, gamma=0.9, normalizer=normalizer)
@@ -97,10 +98,10 @@ def test_a_frozen_normalizer_on_a_bare_env_gives_what_the_vec_normalize_would() 
     bare = make_vec_env("Pendulum-v1", n_envs=2, seed=3, env_kwargs={"max_episode_steps": 15})
     policy = _policy(normalized)
     segments = []
-    for env, normalizer in ((normalized, None), (bare, Normalizer.of(normalized))):
+    for env, normalizer in ((normalized, None), (bare, NormalizationStats.of(normalized))):
         env.seed(11)  # the same episodes in both
         raw = env.reset() if normalizer is not None else None
-        obs = normalizer.obs(raw) if normalizer is not None else env.reset()
+        obs = normalizer.normalize_obs(raw) if normalizer is not None else env.reset()
         state = LoopState.after_reset(obs, raw if raw is not None else env.get_original_obs())
         th.manual_seed(0)
         segments.append(collect_segment(policy, env, 20, state, gamma=0.9, normalizer=normalizer))

@@ -36,7 +36,7 @@ from sb3_trpo_plus.rollouts.pool import (
 )
 from sb3_trpo_plus.rollouts.rules import POOL_ARGUMENT_RULES, WORKER_ENVS_RULES
 from sb3_trpo_plus.rollouts.worker import WORKER_ARGUMENT_RULES, RolloutWorker, SegmentOrder, WorkerEnvs
-from sb3_trpo_plus.segment import Normalizer, Segment
+from sb3_trpo_plus.segment import Segment
 from sb3_trpo_plus.vec_env import RolloutWorkerError
 
 __all__ = [
@@ -44,7 +44,6 @@ __all__ = [
     "WORKER_ARGUMENT_RULES",
     "WORKER_ENVS_RULES",
     "InProcessRollouts",
-    "Normalizer",
     "ProcessRollouts",
     "RayRollouts",
     "RemoteTraceback",

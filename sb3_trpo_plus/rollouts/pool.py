@@ -21,6 +21,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 from sb3_trpo_plus.arguments import Rule, check_arguments
+from sb3_trpo_plus.normalization import NormalizationStats
 from sb3_trpo_plus.ray_cluster import check_cluster_token, use_loopback_for_local_ray
 from sb3_trpo_plus.rollouts.backends import (
     RemoteTraceback,
@@ -32,7 +33,7 @@ from sb3_trpo_plus.rollouts.backends import (
 )
 from sb3_trpo_plus.rollouts.rules import POOL_ARGUMENT_RULES
 from sb3_trpo_plus.rollouts.worker import SegmentOrder, WorkerEnvs
-from sb3_trpo_plus.segment import Normalizer, Segment
+from sb3_trpo_plus.segment import Segment
 from sb3_trpo_plus.vec_env import RolloutWorkerError
 
 
@@ -209,7 +210,7 @@ class RolloutWorkers(VecEnv):
         self._all("set_policy", self._blueprint)
 
     def collect_segments(
-        self, policy: ActorCriticPolicy, n_steps: int, gamma: float, normalizer: Normalizer | None
+        self, policy: ActorCriticPolicy, n_steps: int, gamma: float, normalizer: NormalizationStats | None
     ) -> list[Segment]:
         """One segment of ``n_steps`` from every worker, in worker order. A worker that died is restarted (up to
         ``max_restarts`` times) and its segment collected again."""

@@ -22,8 +22,9 @@ from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from sb3_trpo_plus.arguments import Rule, check_arguments, integer
+from sb3_trpo_plus.normalization import NormalizationStats
 from sb3_trpo_plus.rollouts.rules import WORKER_ENVS_RULES
-from sb3_trpo_plus.segment import LoopState, Normalizer, Segment, collect_segment
+from sb3_trpo_plus.segment import LoopState, Segment, collect_segment
 
 WORKER_ARGUMENT_RULES: dict[str, Rule] = {
     "index": integer(0),
@@ -89,7 +90,7 @@ class SegmentOrder:
     n_steps: int
     gamma: float
     weights: dict[str, th.Tensor]
-    normalizer: Normalizer | None
+    normalizer: NormalizationStats | None
 
 
 class RolloutWorker:
@@ -189,7 +190,7 @@ class RolloutWorker:
         policy.load_state_dict(order.weights)
         norm = order.normalizer
         raw = self._raw_obs
-        state = LoopState(norm.obs(raw) if norm is not None else raw, raw, self._episode_starts, self._timesteps)
+        state = LoopState(norm.normalize_obs(raw) if norm is not None else raw, raw, self._episode_starts, self._timesteps)
         with self._own_generator():
             segment = collect_segment(
                 policy, self.env, order.n_steps, state, gamma=order.gamma, normalizer=norm,
