@@ -345,22 +345,8 @@ class TRPOPlus(TRPO):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ):
-        validate_hyperparameters(
-            policy=policy, env=env, learning_rate=learning_rate, n_steps=n_steps, batch_size=batch_size,
-            gamma=gamma, cg_max_steps=cg_max_steps, cg_damping=cg_damping,
-            line_search_shrinking_factor=line_search_shrinking_factor, line_search_max_iter=line_search_max_iter,
-            n_critic_updates=n_critic_updates, gae_lambda=gae_lambda, use_sde=use_sde,
-            sde_sample_freq=sde_sample_freq, rollout_buffer_class=rollout_buffer_class,
-            rollout_buffer_kwargs=rollout_buffer_kwargs, normalize_advantage=normalize_advantage,
-            target_kl=target_kl, sub_sampling_factor=sub_sampling_factor, fisher_sub_sampling=fisher_sub_sampling,
-            replay_memory=replay_memory, sample_reuse=sample_reuse, reuse_batches=reuse_batches,
-            reuse_max_batches=reuse_max_batches, reuse_trace_clip=reuse_trace_clip, reuse_kl_vary=reuse_kl_vary,
-            replay_is_clip=replay_is_clip, replay_critic=replay_critic,
-            cg_warm_start=cg_warm_start, cg_warm_start_rescale=cg_warm_start_rescale, value_baseline=value_baseline,
-            linear_baseline_l2=linear_baseline_l2, stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose, seed=seed, device=device,
-            _init_setup_model=_init_setup_model,
-        )  # fmt: skip
+        arguments = dict(locals())  # every constructor argument, by name, before anything else is bound
+        validate_hyperparameters(**{name: arguments[name] for name in HYPERPARAMETER_RULES})
         if isinstance(env, str):
             import grasp_envs  # noqa: F401  (registers our ids so that a bare id string works)
         if env is not None and not isinstance(env, str) and normalize_advantage:
