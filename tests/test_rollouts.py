@@ -199,9 +199,10 @@ def check_restart_after_a_kill(pool, delay: float) -> None:
     """SIGKILL to a 1-worker pool's process during a long segment: the worker is replaced and training completes."""
     try:
         old_pid = pool.workers[0]["pid"]
-        model = TRPOPlus("MlpPolicy", pool, seed=0, **{**SMALL, "n_steps": 400})
+        # segments long enough that the kill lands inside training on an idle machine too (2,000 steps per env)
+        model = TRPOPlus("MlpPolicy", pool, seed=0, **{**SMALL, "n_steps": 2000})
         timer = _kill_worker_soon(pool, 0, delay)
-        model.learn(2 * 400 * pool.num_envs)
+        model.learn(2 * 2000 * pool.num_envs)
         timer.join()
         assert pool.restarts == [1] and pool.workers[0]["pid"] != old_pid
     finally:
