@@ -768,18 +768,25 @@ class TRPOPlus(TRPO):
             for start in range(0, len(returns), self.batch_size):
                 idx = order[start : start + self.batch_size]
                 values = self.policy.predict_values(observations[idx]).flatten()
-                value_loss = (weights[idx] * (returns[idx] - values) ** 2).mean()
-                loss = value_loss.item()
-                if not math.isfinite(loss):
+                loss = self._critic_step((weights[idx] * (returns[idx] - values) ** 2).mean())
+                if loss is None:
                     skipped += 1
-                    continue
-                self.policy.optimizer.zero_grad()
-                value_loss.backward()
-                for param in self._actor_params:  # actor parameters move by the trust-region step only
-                    param.grad = None
-                losses.append(loss)
-                self.policy.optimizer.step()
+                else:
+                    losses.append(loss)
         return ValueFit(loss=float(np.mean(losses)) if losses else math.nan, skipped_steps=skipped)
+
+    def _critic_step(self, value_loss: th.Tensor) -> float | None:
+        """One Adam step of the critic on ``value_loss``; the actor's parameters move by the trust-region step only.
+        A non-finite loss (finite inputs and weights give finite gradients: the one way in) is skipped: None."""
+        loss = value_loss.item()
+        if not math.isfinite(loss):
+            return None
+        self.policy.optimizer.zero_grad()
+        value_loss.backward()
+        for param in self._actor_params:
+            param.grad = None
+        self.policy.optimizer.step()
+        return loss
 
     def _log_reuse(self, reused: ReusedBatch) -> None:
         self.logger.record("train/reuse_batches", reused.n_batches)
@@ -829,19 +836,11 @@ class TRPOPlus(TRPO):
         for _ in range(self.n_critic_updates):
             for observations, returns in self._critic_minibatches(replayed):
                 values_pred = self.policy.predict_values(observations)
-                value_loss = F.mse_loss(returns, values_pred.flatten())
-                loss = value_loss.item()
-                if not math.isfinite(loss):
-                    # finite inputs and weights give finite gradients: a non-finite loss is the one way in
+                loss = self._critic_step(F.mse_loss(returns, values_pred.flatten()))
+                if loss is None:
                     skipped += 1
                     continue
-                self.policy.optimizer.zero_grad()
-                value_loss.backward()
-                # Actor parameters are moved by the trust-region step only
-                for param in self._actor_params:
-                    param.grad = None
                 value_losses.append(loss)
-                self.policy.optimizer.step()
         return ValueFit(loss=float(np.mean(value_losses)) if value_losses else math.nan, skipped_steps=skipped)
 
     def _critic_minibatches(self, replayed: Sequence[RolloutEvaluation]) -> Iterable[tuple[th.Tensor, th.Tensor]]:

@@ -1,7 +1,7 @@
 """The documented cluster path: ``ray start --head`` with token authentication, and drivers with and without its token.
 
-The head runs as a subprocess in a session of its own on loopback (the suite's settings, tests/conftest.py), and the
-whole session is stopped at the end, also when a test fails: that cluster only, not every Ray on the machine as
+The head runs as a subprocess in a process group of its own on loopback (the suite's settings, tests/conftest.py), and
+the whole group is stopped at the end, also when a test fails: that cluster only, not every Ray on the machine as
 ``ray stop`` would.
 """
 
@@ -61,7 +61,7 @@ def token_cluster() -> Iterator[str]:
 
 
 def _stop_session(head: subprocess.Popen) -> None:
-    """Stop the head and every process of its session (GCS, raylet, workers): SIGTERM, then SIGKILL."""
+    """Stop the head and every process of its group (GCS, raylet, workers): SIGTERM, then SIGKILL."""
     for sig, wait in ((signal.SIGTERM, 20.0), (signal.SIGKILL, 10.0)):
         try:
             os.killpg(head.pid, sig)
