@@ -1,11 +1,13 @@
-"""Rollout-collection throughput with DummyVecEnv, SubprocVecEnv and the batched engine at 1, 2, 4, 8, 16 envs.
+"""Rollout-collection throughput with DummyVecEnv, SubprocVecEnv, rollout worker processes and the batched engine at
+1, 2, 4, 8, 16 envs.
 
     python -m benchmarks.scaling [--envs Grasper3D-v0 Reacher2D-v0] [--samples 8192] [--repeats 3]
                                  [--counts 1 4 16 64] [--vec-envs DummyVecEnv Batch-1-thread Batch-2-threads]
 
 Times TRPOPlus' ``collect_rollouts`` (policy inference, env stepping, buffer, callbacks) for ``--samples``
 env steps; prints env steps/s, the speed-up over one env in one process, and the ratio of the
-per-step collection time to the raw ``env.step`` time; for the batched engine (``grasp_envs.make_batch_env``,
+per-step collection time to the raw ``env.step`` time ("vs 1 worker": against one rollout worker process,
+``ProcessRollouts`` with ``num_workers=1``, at the same number of envs); for the batched engine (``grasp_envs.make_batch_env``,
 1 to 16 threads) also the share of the collection time spent in ``mujoco.batch``'s physics steps. Writes a plot
 like the thesis' Figures 5.14-5.16 and the raw numbers to benchmarks/results/.
 """
@@ -30,19 +32,18 @@ import grasp_envs  # noqa: F401
 from benchmarks.env_speed import time_env_step
 from grasp_envs import BatchVecEnv, make_batch_env
 from sb3_trpo_plus import TRPOPlus
-from sb3_trpo_plus.vec_env import ShardedSubprocVecEnv
+from sb3_trpo_plus.rollouts import ProcessRollouts
 
 COUNTS = (1, 2, 4, 8, 16)
 
 
-# label -> (VecEnv class, kwargs): one process; one process per env; n_workers processes of several envs
+# label -> (VecEnv class, kwargs): one process; one process per env; rollout workers (processes that each step
+# n_envs / num_workers envs and collect whole segments with a copy of the policy)
 VEC_ENVS: dict[str, tuple[type, dict | None]] = {
     "DummyVecEnv": (DummyVecEnv, None),
     "SubprocVecEnv": (SubprocVecEnv, {"start_method": "forkserver"}),
-    "Sharded-1-worker": (ShardedSubprocVecEnv, {"n_workers": 1}),
-    "Sharded-2-workers": (ShardedSubprocVecEnv, {"n_workers": 2}),
-    # the learner process steps one shard itself: 2 workers = 1 worker process + the learner
-    "Sharded-2-workers-in-process": (ShardedSubprocVecEnv, {"n_workers": 2, "in_process": True}),
+    "Process-1-worker": (ProcessRollouts, {"num_workers": 1}),
+    "Process-2-workers": (ProcessRollouts, {"num_workers": 2}),
     # the batched engine: every simulation in one mujoco.batch.Batch, physics on n_threads threads
     **{f"Batch-{n}-thread{'s' * (n > 1)}": (BatchVecEnv, {"n_threads": n}) for n in (1, 2, 4, 8, 16)},
 }
@@ -70,12 +71,15 @@ def collection_rate(env_id: str, label: str, n_envs: int, samples: int, repeats:
     each (empty otherwise)."""
     vec_env_cls, kwargs = VEC_ENVS[label]
     env: VecEnv
+    physics: PhysicsTimer | None = None
     if vec_env_cls is BatchVecEnv:
         env = make_batch_env(env_id, n_envs, seed=0, **(kwargs or {}))
-        physics: PhysicsTimer | None = PhysicsTimer(env.unwrapped)  # type: ignore[arg-type]
+        physics = PhysicsTimer(env.unwrapped)  # type: ignore[arg-type]
+    elif vec_env_cls is ProcessRollouts:
+        workers = (kwargs or {})["num_workers"]
+        env = ProcessRollouts(env_id, workers, n_envs // workers, seed=0)
     else:
         env = make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=vec_env_cls, vec_env_kwargs=kwargs)
-        physics = None
     n_steps = max(samples // n_envs, 1)
     model = TRPOPlus("MlpPolicy", env, n_steps=n_steps, batch_size=n_steps * n_envs, seed=0,
                      policy_kwargs=dict(net_arch=[100, 100]), device="cpu")  # fmt: skip
@@ -119,6 +123,8 @@ def main() -> None:
         rows = {}
         for n in args.counts:  # interleave the vec envs at each size
             for label in args.vec_envs:
+                if n % (VEC_ENVS[label][1] or {}).get("num_workers", 1):
+                    continue  # the envs do not split evenly over the workers
                 rates, shares = collection_rate(env_id, label, n, args.samples, args.repeats)
                 rows[f"{label}-{n}"] = {"vec_env": label, "n_envs": n, "steps_per_s": float(np.median(rates)), "all": rates}
                 if shares:
@@ -131,7 +137,7 @@ def main() -> None:
         print("|---|---|---|---|---|---|---|")
         for row in sorted(rows.values(), key=lambda r: (list(VEC_ENVS).index(r["vec_env"]), r["n_envs"])):
             row["speedup"] = row["steps_per_s"] / base
-            one_worker = rows.get(f"Sharded-1-worker-{row['n_envs']}", row)["steps_per_s"]
+            one_worker = rows.get(f"Process-1-worker-{row['n_envs']}", row)["steps_per_s"]
             row["speedup_vs_one_worker"] = row["steps_per_s"] / one_worker
             row["ratio_to_raw_env_step"] = (1 / row["steps_per_s"]) / raw
             print(

@@ -54,119 +54,6 @@ def _zoo_argv(algo: str, env: str, rest: Sequence[str]) -> list[str]:
     return ["--algo", algo, "--env", env, "-conf", module, *packages, *rest]
 
 
-def _name_tensorboard_runs() -> None:
-    """TensorBoard runs under ``<tensorboard-log>/<env>/seed<seed>/<Algorithm>_<n>``: env, seed and algorithm."""
-    from rl_zoo3.exp_manager import ExperimentManager
-
-    if getattr(ExperimentManager.learn, "_named", False):
-        return
-    original = ExperimentManager.learn
-
-    @functools.wraps(original)
-    def learn(self: Any, model: Any) -> None:
-        if model.tensorboard_log:  # a plain string attribute: the model stays picklable for checkpoints
-            model.tensorboard_log = os.path.join(model.tensorboard_log, f"seed{self.seed}")
-        original(self, model)
-
-    learn._named = True  # type: ignore[attr-defined]
-    ExperimentManager.learn = learn  # type: ignore[method-assign]
-
-
-def _save_cleanly_on_interrupt() -> None:
-    """Ctrl-C in ``trpo-plus train``: training stops at the next env step (not inside an update) and rl-zoo3 saves
-    the model (with the replay memory) and the VecNormalize statistics, the latter atomically too."""
-    from rl_zoo3.exp_manager import ExperimentManager
-
-    from sb3_trpo_plus.callbacks import StopTrainingOnInterrupt, save_vec_normalize
-
-    if getattr(ExperimentManager.save_trained_model, "_atomic", False):
-        return
-    original_learn, original_save = ExperimentManager.learn, ExperimentManager.save_trained_model
-
-    @functools.wraps(original_learn)
-    def learn(self: Any, model: Any) -> None:
-        stop = StopTrainingOnInterrupt(verbose=1)
-        self.callbacks.append(stop)  # last: callbacks[0] is the one rl-zoo3 closes after an interrupt
-        try:
-            original_learn(self, model)
-        finally:
-            self.callbacks.remove(stop)
-        if stop.interrupted:
-            print("trpo-plus train: interrupted, saving the model, its replay memory and the VecNormalize statistics")
-
-    @functools.wraps(original_save)
-    def save_trained_model(self: Any, model: Any) -> None:
-        normalize, self.normalize = self.normalize, False
-        try:
-            original_save(self, model)
-        finally:
-            self.normalize = normalize
-        if normalize:
-            save_vec_normalize(model.get_vec_normalize_env(), os.path.join(self.params_path, "vecnormalize.pkl"))
-
-    save_trained_model._atomic = True  # type: ignore[attr-defined]
-    ExperimentManager.learn = learn  # type: ignore[method-assign]
-    ExperimentManager.save_trained_model = save_trained_model  # type: ignore[method-assign]
-
-
-def _name_damaged_files_of_resumed_runs() -> None:
-    """``trpo-plus train -i <run>/<ENV>.zip``: rl-zoo3 unpickles that model and the ``vecnormalize.pkl`` beside it;
-    a damaged one raises :class:`~sb3_trpo_plus.agents.RunFileError` naming the file, not a bare unpickling error."""
-    from rl_zoo3.exp_manager import ExperimentManager
-
-    from sb3_trpo_plus.agents import load_trusted_file
-
-    if getattr(ExperimentManager._maybe_normalize, "_names_files", False):
-        return
-    original_normalize, original_load = ExperimentManager._maybe_normalize, ExperimentManager._load_pretrained_agent
-
-    @functools.wraps(original_normalize)
-    def _maybe_normalize(self: Any, env: Any, eval_env: bool) -> Any:
-        path = os.path.join(os.path.dirname(self.trained_agent), self.env_name, "vecnormalize.pkl")  # rl-zoo3's choice
-        if not os.path.exists(path):
-            return original_normalize(self, env, eval_env)
-        return load_trusted_file(lambda: original_normalize(self, env, eval_env), path)
-
-    @functools.wraps(original_load)
-    def _load_pretrained_agent(self: Any, hyperparams: dict[str, Any], env: Any) -> Any:
-        return load_trusted_file(lambda: original_load(self, hyperparams, env), self.trained_agent)
-
-    _maybe_normalize._names_files = True  # type: ignore[attr-defined]
-    ExperimentManager._maybe_normalize = _maybe_normalize  # type: ignore[method-assign]
-    ExperimentManager._load_pretrained_agent = _load_pretrained_agent  # type: ignore[method-assign]
-
-
-@contextlib.contextmanager
-def _custom_training_envs(make_vec_env: Callable[..., Any] | None) -> Iterator[None]:
-    """While open, rl-zoo3 builds the training env with ``make_vec_env(gym_id, <make_vec_env's arguments>)`` (the
-    batched engine, or a pool of rollout workers: ``sb3_trpo_plus.zoo``), with the recipe's seeds, ``env_kwargs`` and
-    ``env_wrapper``; the evaluation env stays rl-zoo3's. ``None``: rl-zoo3's own training env."""
-    from rl_zoo3 import exp_manager
-
-    manager = exp_manager.ExperimentManager
-    original = manager.create_envs
-    if make_vec_env is None:
-        yield
-        return
-
-    @functools.wraps(original)
-    def create_envs(self: Any, n_envs: int, eval_env: bool = False, no_log: bool = False) -> Any:
-        if eval_env:
-            return original(self, n_envs, eval_env, no_log)
-        plain = exp_manager.make_vec_env
-        exp_manager.make_vec_env = functools.partial(make_vec_env, self.env_name.gym_id)
-        try:
-            return original(self, n_envs, eval_env, no_log)
-        finally:
-            exp_manager.make_vec_env = plain
-
-    manager.create_envs = create_envs  # type: ignore[method-assign]
-    try:
-        yield
-    finally:
-        manager.create_envs = original  # type: ignore[method-assign]
-
-
 def _workers_option(value: str) -> tuple[str, int]:
     """``--workers BACKEND:N`` as ``(backend, N)``."""
     from sb3_trpo_plus.zoo import WORKER_BACKENDS
@@ -207,9 +94,8 @@ def train(argv: Sequence[str]) -> None:
     known, rest = parser.parse_known_args(argv)
     if "-h" in rest or "--help" in rest:
         parser.print_help()
-    from rl_zoo3.train import train as zoo_train
-
     import grasp_envs
+    from sb3_trpo_plus.experiment import zoo_train
 
     if known.sim_threads < 0:
         parser.error(f"--sim-threads must be >= 0 (0: every CPU), got {known.sim_threads}")
@@ -243,13 +129,8 @@ def train(argv: Sequence[str]) -> None:
             make = functools.partial(batch_training_env, n_threads=known.sim_threads)
         elif known.sim_threads != 1:
             parser.error("--sim-threads sets the physics threads of --vec-env batch or --workers")
-    _name_tensorboard_runs()
-    _save_cleanly_on_interrupt()
-    _name_damaged_files_of_resumed_runs()
     vec_env = "dummy" if known.vec_env == "batch" else known.vec_env
-    sys.argv = ["trpo-plus train", *_zoo_argv(known.algo, known.env, [*rest, "--vec-env", vec_env])]
-    with _custom_training_envs(make):
-        zoo_train()
+    zoo_train(_zoo_argv(known.algo, known.env, [*rest, "--vec-env", vec_env]), make)
 
 
 def _enjoy_parser() -> argparse.ArgumentParser:
@@ -378,6 +259,7 @@ def _zoo_enjoy(argv: Sequence[str]) -> dict[str, Any]:
     known, rest = parser.parse_known_args(argv)
     from rl_zoo3.enjoy import enjoy as zoo_enjoy
 
+    from sb3_trpo_plus.experiment import zoo_command_line
     from sb3_trpo_plus.zoo import register_in_rl_zoo
 
     register_in_rl_zoo()
@@ -387,9 +269,8 @@ def _zoo_enjoy(argv: Sequence[str]) -> dict[str, Any]:
         rest = [*rest, "--no-render"]
     folder = known.folder or _default_folder(known.algo, known.env)
     print(f"trpo-plus enjoy: loading from {folder} (--trust-pickle: rl-zoo3 unpickles the run)")
-    sys.argv = ["trpo-plus enjoy", "--algo", known.algo, "--env", known.env, "-f", folder, "--exp-id", str(known.exp_id)]
-    sys.argv += [*packages, *rest]
-    with _validated_run_folders(known.env):
+    zoo_argv = ["--algo", known.algo, "--env", known.env, "-f", folder, "--exp-id", str(known.exp_id), *packages, *rest]
+    with zoo_command_line(zoo_argv), _validated_run_folders(known.env):
         zoo_enjoy()
     return {}
 
@@ -399,12 +280,15 @@ def _validated_run_folders(env_id: str) -> Iterator[None]:
     """While open, each run folder rl-zoo3's enjoy picks (``get_model_path``: a local run, or one it has just
     downloaded from the Hugging Face hub) is checked by :func:`sb3_trpo_plus.agents.validate_run_files` before
     rl-zoo3 reads its ``config.yml`` / ``args.yml`` with ``yaml.UnsafeLoader`` and evaluates ``normalize``; a damaged
-    ``vecnormalize.pkl`` raises :class:`~sb3_trpo_plus.agents.RunFileError` naming it."""
+    ``vecnormalize.pkl`` raises :class:`~sb3_trpo_plus.agents.RunFileError` naming it; the test env gets the run's
+    ``env_wrapper`` without its training aids (:func:`sb3_trpo_plus.zoo.evaluation_wrappers`). rl-zoo3's ``enjoy``
+    has no hooks for these: its module's names are replaced for the call and restored after it."""
     import rl_zoo3.enjoy as enjoy_module
     import rl_zoo3.utils as zoo_utils
     from stable_baselines3.common.vec_env import VecNormalize
 
     from sb3_trpo_plus.agents import load_trusted_file, validate_run_files
+    from sb3_trpo_plus.zoo import evaluation_wrappers
 
     original = enjoy_module.get_model_path
 
@@ -421,12 +305,23 @@ def _validated_run_folders(env_id: str) -> Iterator[None]:
         def load(load_path: str, venv: Any) -> VecNormalize:
             return load_trusted_file(lambda: VecNormalize.load(load_path, venv), Path(load_path))
 
+    create_test_env = enjoy_module.create_test_env
+
+    @functools.wraps(create_test_env)
+    def evaluation_test_env(*args: Any, **kwargs: Any) -> Any:
+        hyperparams = kwargs.get("hyperparams")
+        if hyperparams is not None and "env_wrapper" in hyperparams:
+            kwargs["hyperparams"] = {**hyperparams, "env_wrapper": evaluation_wrappers(hyperparams["env_wrapper"])}
+        return create_test_env(*args, **kwargs)
+
     enjoy_module.get_model_path = get_model_path
+    enjoy_module.create_test_env = evaluation_test_env
     zoo_utils.VecNormalize = NamingVecNormalize  # type: ignore[misc]
     try:
         yield
     finally:
         enjoy_module.get_model_path = original
+        enjoy_module.create_test_env = create_test_env
         zoo_utils.VecNormalize = VecNormalize  # type: ignore[misc]
 
 

@@ -929,11 +929,11 @@ class TRPOPlus(TRPO):
         progress_bar: bool = False,
     ) -> SelfTRPOPlus:
         """SB3's ``learn``. A rollout worker process that dies raises
-        :class:`~sb3_trpo_plus.vec_env.RolloutWorkerError` naming the worker and its env; the weights are those of
+        :class:`~sb3_trpo_plus.worker_failures.RolloutWorkerError` naming the worker and its env; the weights are those of
         the last completed update (an update starts only once its rollout is complete).
         Ctrl-C: see :class:`~sb3_trpo_plus.callbacks.SaveOnInterrupt`.
         """
-        from sb3_trpo_plus.vec_env import subprocess_env_ids, worker_failure
+        from sb3_trpo_plus.worker_failures import subprocess_env_ids, worker_failure
 
         env_ids = subprocess_env_ids(self.env)  # asked now: a dead worker cannot say which env it stepped
         try:

@@ -294,63 +294,9 @@ def register_in_rl_zoo() -> None:
     from sb3_trpo_plus.trpo_plus import TRPOPlus
 
     zoo_utils.ALGOS["trpo_plus"] = TRPOPlus
-    _leave_training_aids_out_of_evaluation()
     HYPERPARAMS_SAMPLER["trpo_plus"] = sample_trpo_plus_params
     if "trpo" in HYPERPARAMS_CONVERTER:
         HYPERPARAMS_CONVERTER["trpo_plus"] = HYPERPARAMS_CONVERTER["trpo"]
-
-
-def _leave_training_aids_out_of_evaluation() -> None:
-    """rl-zoo3 wraps its evaluation envs (EvalCallback's, and ``enjoy``'s) with the YAML's ``env_wrapper`` too: give
-    them the wrappers without the training aids (``evaluation_wrappers``). Idempotent."""
-    from rl_zoo3 import enjoy, record_video
-    from rl_zoo3 import utils as zoo_utils
-    from rl_zoo3.exp_manager import ExperimentManager
-
-    if getattr(ExperimentManager.create_envs, "_evaluation_wrappers", False):
-        return
-    preprocess, create_envs, create_test_env = (
-        ExperimentManager._preprocess_hyperparams,
-        ExperimentManager.create_envs,
-        zoo_utils.create_test_env,
-    )
-
-    def _preprocess_hyperparams(self: Any, hyperparams: dict[str, Any]) -> Any:
-        self._evaluation_env_wrapper = zoo_utils.get_wrapper_class(
-            {"env_wrapper": evaluation_wrappers(hyperparams.get("env_wrapper"))}
-        )
-        return preprocess(self, hyperparams)
-
-    def _create_envs(self: Any, n_envs: int, eval_env: bool = False, no_log: bool = False) -> Any:
-        if not eval_env:
-            return create_envs(self, n_envs, eval_env, no_log)
-        training_wrapper, self.env_wrapper = self.env_wrapper, getattr(self, "_evaluation_env_wrapper", self.env_wrapper)
-        try:
-            return create_envs(self, n_envs, eval_env, no_log)
-        finally:
-            self.env_wrapper = training_wrapper
-
-    def _create_test_env(*args: Any, **kwargs: Any) -> Any:
-        hyperparams = kwargs.get("hyperparams")
-        if hyperparams is not None and "env_wrapper" in hyperparams:
-            kwargs["hyperparams"] = {**hyperparams, "env_wrapper": evaluation_wrappers(hyperparams["env_wrapper"])}
-        return create_test_env(*args, **kwargs)
-
-    _create_envs._evaluation_wrappers = True  # type: ignore[attr-defined]
-    ExperimentManager._preprocess_hyperparams = _preprocess_hyperparams  # type: ignore[method-assign]
-    ExperimentManager.create_envs = _create_envs  # type: ignore[method-assign]
-    import rl_zoo3
-
-    modules = [zoo_utils, enjoy, record_video, rl_zoo3]
-    try:
-        from rl_zoo3 import push_to_hub
-
-        modules.append(push_to_hub)
-    except ImportError:  # pragma: no cover - its optional dependencies are missing
-        pass
-    for module in modules:
-        if hasattr(module, "create_test_env"):
-            module.create_test_env = _create_test_env  # type: ignore[attr-defined]
 
 
 def _scripted_starts_of(wrapper_class: Any, flag: str) -> dict[str, Any] | None:

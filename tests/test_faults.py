@@ -38,7 +38,7 @@ from sb3_trpo_plus.agents import (
     read_run_config,
 )
 from sb3_trpo_plus.callbacks import SaveOnInterrupt, save_vec_normalize
-from sb3_trpo_plus.vec_env import RolloutWorkerError, ShardedSubprocVecEnv
+from sb3_trpo_plus.worker_failures import RolloutWorkerError
 
 ROOT = Path(__file__).resolve().parents[1]
 COMPAT = ROOT / "tests" / "data" / "compat"
@@ -174,7 +174,7 @@ SIGNAL_TESTS = [
     "tests/test_faults.py::test_an_ignored_sigint_stays_ignored",
     "tests/test_faults.py::test_train_command_saves_on_sigint_and_resumes",
     "tests/test_rollouts.py::test_ctrl_c_while_workers_collect_lets_the_segment_finish_and_saves_a_checkpoint",
-    "tests/test_vec_env.py::test_workers_ignore_sigint_and_a_dead_one_is_named",
+    "tests/test_rollouts.py::test_process_workers_ignore_sigint",
 ]
 
 
@@ -260,19 +260,17 @@ class ParametersAtRolloutStart(BaseCallback):
         return True
 
 
-@pytest.mark.parametrize("vec_env", ["SubprocVecEnv", "ShardedSubprocVecEnv"])
-def test_dead_worker_is_named_and_weights_are_untouched(vec_env: str) -> None:
+def test_dead_subproc_vec_env_worker_is_named_and_weights_are_untouched() -> None:
+    """SB3's ``SubprocVecEnv`` (one env per process): a worker's death is named as the pools name theirs
+    (tests/test_rollouts.py)."""
     # forkserver (the default), not fork: forked SubprocVecEnv workers inherit each other's pipe ends, so a dead
     # worker's pipe would never report end-of-file
-    if vec_env == "SubprocVecEnv":
-        env: Any = SubprocVecEnv(dying_env_fns())
-    else:
-        env = ShardedSubprocVecEnv(dying_env_fns(), n_workers=2)
+    env = SubprocVecEnv(dying_env_fns())
     model = tiny_model(env)
     record = ParametersAtRolloutStart()
     try:
         with pytest.raises(
-            RolloutWorkerError, match=r"worker 1 \(pid \d+\) stepping envs? 1 \(Pendulum-v1\) died: killed by SIGKILL"
+            RolloutWorkerError, match=r"worker 1 \(pid \d+\) stepping env 1 \(Pendulum-v1\) died: killed by SIGKILL"
         ) as caught:
             model.learn(10_000, callback=record)
     finally:

@@ -1,7 +1,7 @@
 """Every user-facing argument accepts its type and range only, and a bad value's error names it and the value.
 
 Each table has one row per argument of its constructor: ``TRPOPlus``, the batched engine (``BatchVecEnv``,
-``make_batch_env``), ``ShardedSubprocVecEnv``, the rollout worker pools and their parts (``InProcessRollouts``,
+``make_batch_env``), the rollout worker pools and their parts (``InProcessRollouts``,
 ``ProcessRollouts``, ``RayRollouts``, ``RolloutWorker``, ``WorkerEnvs``, ``rollout_workers``); a new argument without
 a row fails the table's coverage test. Booleans are ``bool`` only, integers never ``bool`` or ``float``, numbers
 ``int`` or ``float`` (never ``bool`` or ``str``) or a schedule where SB3 takes one, names a list or tuple of ``str``
@@ -43,7 +43,6 @@ from sb3_trpo_plus.rollouts import (
 )
 from sb3_trpo_plus.segment import SegmentDictRolloutBuffer, SegmentRolloutBuffer
 from sb3_trpo_plus.trpo_plus import HYPERPARAMETER_RULES, validate_hyperparameters
-from sb3_trpo_plus.vec_env import ShardedSubprocVecEnv
 
 
 class Row(NamedTuple):
@@ -255,18 +254,6 @@ POOL_TABLE: dict[str, Row] = {
 CONSTRUCTORS: dict[str, Constructor] = {
     "BatchVecEnv": Constructor(BatchVecEnv, {"env_id": "Reacher2D-v1", "n_envs": 1}, BATCH_TABLE, "{} must be "),
     "make_batch_env": Constructor(make_batch_env, {"env_id": "Reacher2D-v1"}, BATCH_TABLE, "{} must be "),
-    "ShardedSubprocVecEnv": Constructor(
-        ShardedSubprocVecEnv,
-        # one env in the learner's process: no worker process, but where a row asks for one (in_process=False)
-        {"env_fns": [_pendulum], "in_process": True},
-        {
-            "env_fns": Row([[_pendulum], (_pendulum,)], [[], _pendulum, "Pendulum-v1", [None], ["Pendulum-v1"]]),
-            "n_workers": Row([None, 1, 4, np.int64(1)], [0, -1, *NOT_INT]),
-            "start_method": Row([None, *mp.get_all_start_methods()], ["thread", "", 1, True]),
-            "in_process": Row([True, False], NOT_BOOL),
-        },
-        "ShardedSubprocVecEnv: `{}` must be ",
-    ),
     **{
         pool.__name__: Constructor(
             pool,

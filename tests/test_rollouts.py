@@ -285,6 +285,22 @@ def test_a_killed_batched_engine_worker_beyond_its_restarts_names_itself_and_lea
     )
 
 
+def test_process_workers_ignore_sigint() -> None:
+    """A terminal's Ctrl-C reaches the workers too: they ignore it (the learner handles it, then stops and closes
+    them), so the pool steps on with the same workers."""
+    pool = ProcessRollouts("Reacher2D-v1", num_workers=2, envs_per_worker=2, seed=0)
+    try:
+        pool.reset()
+        pids = [worker["pid"] for worker in pool.workers]
+        for pid in pids:
+            os.kill(pid, signal.SIGINT)
+        for _ in range(3):
+            pool.step(np.zeros((pool.num_envs, *pool.action_space.shape), dtype=np.float32))
+        assert [worker["pid"] for worker in pool.workers] == pids and pool.restarts == [0, 0]
+    finally:
+        pool.close()
+
+
 def test_a_worker_killed_by_a_signal_is_restarted() -> None:
     check_restart_after_a_kill(ProcessRollouts("Grasper3D-v7", num_workers=1, envs_per_worker=2, seed=0, max_restarts=2), 0.5)
 

@@ -323,18 +323,27 @@ def test_the_tasks_of_grasp_envs_train_on_the_batched_engine_by_default(argv, ex
     """What the training env is, seen from inside rl-zoo3's train(): the batched engine for grasp_envs' ids unless
     --vec-env says otherwise, rl-zoo3's own VecEnv for any other id."""
     import rl_zoo3.train
-    from rl_zoo3 import exp_manager
+
+    from sb3_trpo_plus.experiment import TRPOPlusExperimentManager
+    from sb3_trpo_plus.zoo import batch_training_env
 
     seen: dict[str, object] = {}
 
     def fake_train() -> None:
         seen["argv_vec_env"] = sys.argv[sys.argv.index("--vec-env") + 1]
-        seen["patched"] = hasattr(exp_manager.ExperimentManager.create_envs, "__wrapped__")  # functools.wraps
+        seen["manager"] = rl_zoo3.train.ExperimentManager
 
     monkeypatch.setattr(rl_zoo3.train, "train", fake_train)
+    argv_before, manager_before = list(sys.argv), rl_zoo3.train.ExperimentManager
     cli.main(["train", *argv])
-    assert seen["patched"] is (expected == "batch")
+    manager = seen["manager"]
+    assert isinstance(manager, type) and issubclass(manager, TRPOPlusExperimentManager)
+    training_envs = manager.training_envs
+    assert (getattr(training_envs, "func", None) is batch_training_env) is (expected == "batch")
     assert seen["argv_vec_env"] == ("dummy" if expected == "batch" else expected)
+    # rl-zoo3's inputs are the caller's again once the command returns
+    assert sys.argv == argv_before
+    assert rl_zoo3.train.ExperimentManager is manager_before
 
 
 def test_train_with_rollout_workers_in_processes_trains_as_in_process(tmp_path: Path, monkeypatch) -> None:

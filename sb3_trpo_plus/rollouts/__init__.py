@@ -37,7 +37,7 @@ from sb3_trpo_plus.rollouts.pool import (
 from sb3_trpo_plus.rollouts.rules import POOL_ARGUMENT_RULES, WORKER_ENVS_RULES
 from sb3_trpo_plus.rollouts.worker import WORKER_ARGUMENT_RULES, RolloutWorker, SegmentOrder, WorkerEnvs
 from sb3_trpo_plus.segment import Segment
-from sb3_trpo_plus.vec_env import RolloutWorkerError
+from sb3_trpo_plus.worker_failures import RolloutWorkerError
 
 __all__ = [
     "POOL_ARGUMENT_RULES",

@@ -14,7 +14,7 @@ from typing import Any
 import torch as th
 
 from sb3_trpo_plus.rollouts.worker import RolloutWorker, WorkerEnvs
-from sb3_trpo_plus.vec_env import RolloutWorkerError, _death_cause
+from sb3_trpo_plus.worker_failures import RolloutWorkerError, death_cause
 
 
 class _WorkerDied(Exception):
@@ -119,14 +119,14 @@ class _ProcessBackend(_Backend):
         try:
             self.remotes[index].send((method, args))
         except (ConnectionError, EOFError) as error:
-            raise _WorkerDied(_death_cause(self.processes[index])) from error
+            raise _WorkerDied(death_cause(self.processes[index])) from error
         return None
 
     def result(self, index: int, handle: Any) -> Any:
         try:
             ok, value = self.remotes[index].recv()
         except (ConnectionError, EOFError) as error:
-            raise _WorkerDied(_death_cause(self.processes[index])) from error
+            raise _WorkerDied(death_cause(self.processes[index])) from error
         if not ok:
             raise RemoteTraceback(value)
         return value

@@ -34,7 +34,7 @@ from sb3_trpo_plus.rollouts.backends import (
 from sb3_trpo_plus.rollouts.rules import POOL_ARGUMENT_RULES
 from sb3_trpo_plus.rollouts.worker import SegmentOrder, WorkerEnvs
 from sb3_trpo_plus.segment import Segment
-from sb3_trpo_plus.vec_env import RolloutWorkerError
+from sb3_trpo_plus.worker_failures import RolloutWorkerError
 
 
 class RolloutWorkers(VecEnv):
