@@ -41,15 +41,12 @@ FIELDS = ("timesteps", "train_seconds", "eval_seconds", "success", "mean_return"
 def evaluate_held_out(model: Any, env_id: str, episodes: int, statistics: Any) -> tuple[float, float]:
     """(success rate, mean return) of the deterministic policy on ``episodes`` held-out episodes: one batched
     simulation per episode, env ``i`` reset with seed ``EVAL_SEED + i``, each counted at its first episode's end."""
-    from stable_baselines3.common.vec_env import VecNormalize
-
     from grasp_envs import make_batch_env
+    from sb3_trpo_plus.evaluation import frozen_normalization
 
     env: Any = make_batch_env(env_id, episodes, seed=EVAL_SEED)
     if statistics is not None:  # the training statistics, frozen; rewards stay the env's
-        frozen = VecNormalize(env, training=False, norm_reward=False, clip_obs=statistics.clip_obs, epsilon=statistics.epsilon)
-        frozen.obs_rms = statistics.obs_rms
-        env = frozen
+        env = frozen_normalization(env, statistics)
     observations = env.reset()
     done = np.zeros(episodes, dtype=bool)
     successes, returns = np.zeros(episodes), np.zeros(episodes)

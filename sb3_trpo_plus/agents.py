@@ -34,15 +34,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
-import gymnasium as gym
 import numpy as np
 import torch as th
 import yaml
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from sb3_trpo_plus.normalization import NormalizationStats
+from sb3_trpo_plus.normalization import NormalizationStats, StatisticsMismatchError
 
 T = TypeVar("T")
 ORDERED_DICT_TAG = "tag:yaml.org,2002:python/object/apply:collections.OrderedDict"
@@ -495,43 +494,27 @@ def make_eval_env(
     env_kwargs: dict[str, Any] | None = None,
     norm_reward: bool = False,
 ) -> VecEnv:
-    """The run's test env, as rl-zoo3's ``create_test_env`` makes it, without unpickling anything.
-
-    ``Monitor``-wrapped envs in a ``DummyVecEnv`` (episode returns in ``info["episode"]``), the run's env wrappers
-    and ``env_kwargs`` (updated by ``env_kwargs``), frame stacking, and the VecNormalize statistics frozen
+    """The run's test env, as rl-zoo3's ``create_test_env`` makes it, without unpickling anything: the evaluation env
+    (:func:`sb3_trpo_plus.evaluation.evaluation_env`) of the run's env id, ``env_kwargs`` (updated by ``env_kwargs``),
+    env wrappers without training aids, VecEnv wrapper and frame stacking, with the VecNormalize statistics frozen
     (``normalization``: read by :func:`load_normalization`, or a VecNormalize unpickled by the trusted path).
     """
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import VecFrameStack
-
     import grasp_envs  # noqa: F401  (registers our ids)
+    from sb3_trpo_plus.evaluation import evaluation_env
 
     where = config.stats_dir / "config.yml"
-    kwargs = {**config.env_kwargs, **(env_kwargs or {})}
-    if render_mode is not None:
-        kwargs["render_mode"] = render_mode
-    spec = gym.spec(config.env_id)
-    wrapper = _wrapper_class(config.hyperparams, "env_wrapper", where)
-    env = make_vec_env(spec.make, n_envs=n_envs, seed=seed, wrapper_class=wrapper, env_kwargs=kwargs, vec_env_cls=DummyVecEnv)
-    vec_wrapper = _wrapper_class(config.hyperparams, "vec_env_wrapper", where)
-    if vec_wrapper is not None:
-        env = vec_wrapper(env)
-    if config.normalize_kwargs is not None:
-        if normalization is None:
-            raise RunFileError(f"{config.stats_dir}: the run normalises observations but has no vecnormalize.pkl")
-        if isinstance(normalization, VecNormalize):  # unpickled by the trusted path
-            normalization.set_venv(env)
-            normalization.training, normalization.norm_reward = False, norm_reward
-            env = normalization
-        else:
-            try:
-                env = normalization.wrap(env, norm_reward=norm_reward)
-            except ValueError as error:  # statistics of another observation space
-                raise RunFileError(f"{config.stats_dir}: {error}") from None
-    frame_stack = config.hyperparams.get("frame_stack")
-    if frame_stack:
-        env = VecFrameStack(env, int(frame_stack))
-    return env
+    if config.normalize_kwargs is not None and normalization is None:
+        raise RunFileError(f"{config.stats_dir}: the run normalises observations but has no vecnormalize.pkl")
+    try:
+        return evaluation_env(
+            config.env_id, {**config.env_kwargs, **(env_kwargs or {})},
+            normalization if config.normalize_kwargs is not None else None, seed,
+            _wrapper_class(config.hyperparams, "env_wrapper", where), n_envs=n_envs, render_mode=render_mode,
+            vec_env_wrapper=_wrapper_class(config.hyperparams, "vec_env_wrapper", where),
+            frame_stack=config.hyperparams.get("frame_stack"), norm_reward=norm_reward,
+        )  # fmt: skip
+    except StatisticsMismatchError as error:
+        raise RunFileError(f"{config.stats_dir}: {error}") from None
 
 
 def load_agent(

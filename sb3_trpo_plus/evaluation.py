@@ -23,9 +23,10 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.running_mean_std import RunningMeanStd
-from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecNormalize
 
 from sb3_trpo_plus.agents import NormalizationStats, load_normalization
+from sb3_trpo_plus.normalization import StatisticsMismatchError, check_statistics_fit
 
 
 @dataclass(frozen=True)
@@ -58,40 +59,84 @@ def evaluation_env(
     normalization: str | Path | NormalizationStats | VecNormalize | RunningMeanStd | None = None,
     seed: int | None = None,
     wrapper_class: Callable[[gym.Env], gym.Env] | None = None,
+    *,
+    n_envs: int = 1,
+    render_mode: str | None = None,
+    vec_env_wrapper: Callable[[VecEnv], VecEnv] | None = None,
+    frame_stack: int | None = None,
+    norm_reward: bool = False,
 ) -> VecEnv:
-    """One monitored env of ``env_id`` made with ``env_kwargs``, for ``evaluate_agent``.
+    """Monitored envs of ``env_id`` made with ``env_kwargs``, as rl-zoo3's ``create_test_env`` makes a test env: the one
+    builder of evaluation envs (``evaluate_agent``'s, ``trpo-plus enjoy``'s and ``record-video``'s, a loaded run's).
 
     :param normalization: the VecNormalize statistics of a run trained with VecNormalize. They are never updated, and
-        rewards stay the env's. One of: the path of the run's ``vecnormalize.pkl``, read as data by
-        :func:`sb3_trpo_plus.agents.load_normalization` (a file that carries code is refused with
-        :class:`~sb3_trpo_plus.agents.RunFileError`); the statistics read so (``NormalizationStats``); the training
-        ``VecNormalize`` itself, whose observation statistics the env shares, so that it follows them as training
-        updates them. Each of these applies its saved ``norm_obs``, ``clip_obs`` and ``epsilon``. Or only the
-        observation statistics (``VecNormalize.obs_rms``), with VecNormalize's defaults (``clip_obs`` 10, ``epsilon``
-        1e-8). ``None``: observations as the env gives them.
-    :param seed: seed of the env (its action space and first reset); ``evaluate_agent`` seeds the resets itself
-    :param wrapper_class: a Gymnasium wrapper of the env (not the training-only aids). As in SB3's ``make_vec_env``,
+        rewards stay the env's unless ``norm_reward``. One of: the path of the run's ``vecnormalize.pkl``, read as data
+        by :func:`sb3_trpo_plus.agents.load_normalization` (a file that carries code is refused with
+        :class:`~sb3_trpo_plus.agents.RunFileError`); the statistics read so (``NormalizationStats``); a
+        ``VecNormalize`` (the training one, or one unpickled from a trusted run), whose statistics the env shares, so
+        that it follows them as training updates them. Each of these applies its saved ``norm_obs``, ``clip_obs`` and
+        ``epsilon``. Or only the observation statistics (``VecNormalize.obs_rms``), with VecNormalize's defaults
+        (``clip_obs`` 10, ``epsilon`` 1e-8). ``None``: observations as the env gives them. Statistics of another
+        observation shape raise :class:`~sb3_trpo_plus.normalization.StatisticsMismatchError`.
+    :param seed: seed of the envs (env ``i``: ``seed + i``; their action spaces and first resets); ``evaluate_agent``
+        seeds the resets itself
+    :param wrapper_class: a Gymnasium wrapper of each env (not the training-only aids). As in SB3's ``make_vec_env``,
         it wraps the Monitor, so the Monitor's returns are the env's rewards before the wrapper changes them.
+    :param n_envs: envs in the ``DummyVecEnv`` (``evaluate_agent`` runs one)
+    :param render_mode: the envs' render mode (default: none)
+    :param vec_env_wrapper: a VecEnv wrapper, applied under the normalization (rl-zoo3's ``vec_env_wrapper``)
+    :param frame_stack: stack this many frames over the normalized observations (rl-zoo3's ``frame_stack``)
+    :param norm_reward: normalize the rewards with the statistics' return scale (``trpo-plus enjoy --norm-reward``)
     """
-    env = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=env_kwargs, wrapper_class=wrapper_class)
-    if normalization is None:
-        return env
+    kwargs = dict(env_kwargs or {})
+    if render_mode is not None:
+        kwargs["render_mode"] = render_mode
+    env: VecEnv = make_vec_env(gym.spec(env_id).make, n_envs=n_envs, seed=seed, env_kwargs=kwargs, wrapper_class=wrapper_class)
+    if vec_env_wrapper is not None:
+        env = vec_env_wrapper(env)
+    if normalization is not None:
+        env = frozen_normalization(env, normalization, norm_reward)
+    if frame_stack:
+        env = VecFrameStack(env, int(frame_stack))
+    return env
+
+
+def frozen_normalization(
+    env: VecEnv, normalization: str | Path | NormalizationStats | VecNormalize | RunningMeanStd, norm_reward: bool = False
+) -> VecNormalize:
+    """``env`` under ``normalization`` (any form ``evaluation_env`` takes), frozen: for an evaluation env built
+    another way (e.g. ``grasp_envs.make_batch_env``)."""
     if isinstance(normalization, str | Path):
         normalization = load_normalization(normalization)
     if isinstance(normalization, NormalizationStats):
-        return normalization.wrap(env, training=False, norm_reward=False)
+        return normalization.wrap(env, training=False, norm_reward=norm_reward)
     if isinstance(normalization, VecNormalize):
         normalized = VecNormalize(
-            env, training=False, norm_obs=normalization.norm_obs, norm_reward=False, clip_obs=normalization.clip_obs,
-            gamma=normalization.gamma, epsilon=normalization.epsilon, norm_obs_keys=normalization.norm_obs_keys,
+            env, training=False, norm_obs=normalization.norm_obs, norm_reward=norm_reward, clip_obs=normalization.clip_obs,
+            clip_reward=normalization.clip_reward, gamma=normalization.gamma, epsilon=normalization.epsilon,
+            norm_obs_keys=normalization.norm_obs_keys,
         )  # fmt: skip
         if normalization.norm_obs:
-            normalized.obs_rms = normalization.obs_rms
+            _share(normalized, "obs_rms", normalization.obs_rms)
+        normalized.ret_rms = normalization.ret_rms
         return normalized
     normalized = VecNormalize(env, training=False, norm_reward=False)
-    statistics: Any = normalization  # a RunningMeanStd; mypy infers obs_rms as the Dict-space form, a dict of them
-    normalized.obs_rms = statistics
+    _share(normalized, "obs_rms", normalization)
     return normalized
+
+
+def _share(normalized: VecNormalize, name: str, statistics: Any) -> None:
+    """Give ``normalized`` the statistics object ``statistics`` (shared, not copied), checked to fit its env."""
+    own = getattr(normalized, name)
+    if isinstance(own, dict):
+        if not isinstance(statistics, dict) or statistics.keys() != own.keys():
+            keys = list(statistics) if isinstance(statistics, dict) else "none"
+            raise StatisticsMismatchError(f"VecNormalize statistics of keys {keys} do not fit the env's {list(own)}")
+        for key, rms in own.items():
+            check_statistics_fit(rms, statistics[key].mean)
+    else:
+        check_statistics_fit(own, statistics.mean)
+    setattr(normalized, name, statistics)
 
 
 def evaluate_agent(

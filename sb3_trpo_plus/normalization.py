@@ -113,7 +113,18 @@ class NormalizationStats:
         return vec_normalize
 
 
-def _set_rms(rms: Any, mean: Any, var: Any, count: Any) -> None:
+class StatisticsMismatchError(ValueError):
+    """VecNormalize statistics of another observation shape than the env's."""
+
+
+def check_statistics_fit(rms: Any, mean: Any) -> None:
+    """Raise :class:`StatisticsMismatchError` where ``rms`` (the env's) and ``mean`` (the statistics') differ in shape."""
     if np.shape(rms.mean) != np.shape(mean):
-        raise ValueError(f"VecNormalize statistics of shape {np.shape(mean)} do not fit the env's {np.shape(rms.mean)}")
+        raise StatisticsMismatchError(
+            f"VecNormalize statistics of shape {np.shape(mean)} do not fit the env's {np.shape(rms.mean)}"
+        )
+
+
+def _set_rms(rms: Any, mean: Any, var: Any, count: Any) -> None:
+    check_statistics_fit(rms, mean)
     rms.mean, rms.var, rms.count = np.array(mean, dtype=np.float64), np.array(var, dtype=np.float64), float(count)

@@ -167,3 +167,42 @@ def test_one_env_and_at_least_one_episode() -> None:
         evaluate_agent(Recorder(), make_vec_env(ENV_ID, n_envs=2), n_episodes=1, seed=0)
     with pytest.raises(ValueError, match="at least 1"):
         evaluate_agent(Recorder(), evaluation_env(ENV_ID), n_episodes=0, seed=0)
+
+
+@pytest.mark.parametrize("source", ["path", "training VecNormalize", "observation statistics"])
+def test_statistics_of_another_observation_shape_are_refused(tmp_path: Path, source: str) -> None:
+    """Statistics saved for Reacher2D-v1 do not fit Reacher3D-v1's observations: refused when the env is built,
+    naming both shapes, whichever form they come in."""
+    from sb3_trpo_plus.normalization import StatisticsMismatchError
+
+    path = tmp_path / "vecnormalize.pkl"
+    statistics = _saved_run(path)
+    normalization = {"path": path, "observation statistics": statistics, "training VecNormalize": None}[source]
+    if normalization is None:
+        normalization = VecNormalize.load(str(path), make_vec_env(ENV_ID, n_envs=1))
+    with pytest.raises(StatisticsMismatchError, match=r"statistics of shape \(\d+,\) do not fit the env's \(\d+,\)"):
+        evaluation_env("Reacher3D-v1", normalization=normalization)
+
+
+def test_norm_reward_frame_stack_and_several_envs(tmp_path: Path) -> None:
+    """What ``trpo-plus enjoy --norm-reward --n-envs 2`` and a run's ``frame_stack`` build: rewards scaled by the
+    statistics' return scale, frames stacked over the normalized observations, env ``i`` seeded ``seed + i``."""
+    from stable_baselines3.common.vec_env import VecFrameStack
+
+    path = tmp_path / "vecnormalize.pkl"
+    training = VecNormalize(make_vec_env(ENV_ID, n_envs=1))
+    training.ret_rms.var = np.array(9.0)
+    training.save(str(path))
+    env = evaluation_env(ENV_ID, normalization=path, seed=5, n_envs=2, frame_stack=3, norm_reward=True)
+    assert isinstance(env, VecFrameStack) and env.num_envs == 2
+    observations = env.reset()
+    single = gym.make(ENV_ID).observation_space.shape[0]
+    assert observations.shape == (2, 3 * single)
+    for i in range(2):
+        first, _ = gym.make(ENV_ID).reset(seed=5 + i)
+        np.testing.assert_allclose(observations[i, -single:], np.clip(first / np.sqrt(1 + 1e-8), -10, 10), rtol=1e-5)
+    _, rewards, _, _ = env.step(np.zeros((2, 2), dtype=np.float32))
+    plain = gym.make(ENV_ID)
+    plain.reset(seed=5)
+    _, reward, _, _, _ = plain.step(np.zeros(2, dtype=np.float32))
+    assert rewards[0] == pytest.approx(reward / np.sqrt(9.0 + 1e-8), rel=1e-5)
