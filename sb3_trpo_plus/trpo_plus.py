@@ -5,14 +5,12 @@ from __future__ import annotations
 import dataclasses
 import io
 import math
-import os
 import pathlib
 import random
 import time
 import warnings
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -25,11 +23,15 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import FloatSchedule, explained_variance
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
-from torch import nn
 from torch.nn import functional as F
 
-from sb3_trpo_plus.arguments import Rule, boolean, integer, number, optional
 from sb3_trpo_plus.baselines import LinearFeatureBaseline
+from sb3_trpo_plus.generalized import ReuseSettings, fit_weighted_critic, generalized_batch
+from sb3_trpo_plus.hyperparameters import (
+    HYPERPARAMETER_RULES,
+    float_or_schedule,
+    validate_hyperparameters,
+)
 from sb3_trpo_plus.natural_gradient import detached_distribution
 from sb3_trpo_plus.normalization import NormalizationStats
 from sb3_trpo_plus.persistence import atomic_write
@@ -52,6 +54,9 @@ from sb3_trpo_plus.update import (
     NaturalGradientSettings,
     PolicyBatch,
     PolicyStep,
+    UpdateTimings,
+    ValueFit,
+    actor_parameters,
     natural_gradient_step,
     no_warm_start,
     surrogate_advantages,
@@ -59,172 +64,6 @@ from sb3_trpo_plus.update import (
 )
 
 SelfTRPOPlus = TypeVar("SelfTRPOPlus", bound="TRPOPlus")
-
-VALUE_BASELINES = ("critic", "linear")
-SAMPLE_REUSE = ("none", "generalized")
-
-
-def actor_parameters(policy: ActorCriticPolicy) -> list[nn.Parameter]:
-    """The parameters that define the action distribution, selected through the policy's modules.
-
-    Features extractor (shared or actor-only), the actor MLP, the action head and a state-independent
-    log-std. The value head and the critic MLP are never included.
-    """
-    mlp_extractor = policy.mlp_extractor
-    if not hasattr(mlp_extractor, "policy_net"):
-        raise TypeError(
-            f"{type(mlp_extractor).__name__} has no `policy_net`: TRPOPlus needs SB3's MlpExtractor layout "
-            "to tell actor parameters from critic parameters"
-        )
-    extractor = policy.features_extractor if policy.share_features_extractor else policy.pi_features_extractor
-    modules: list[nn.Module] = [extractor, mlp_extractor.policy_net, policy.action_net]
-    params: list[nn.Parameter] = [p for module in modules for p in module.parameters()]
-    log_std = getattr(policy, "log_std", None)
-    if isinstance(log_std, nn.Parameter):
-        params.append(log_std)
-    unique: dict[int, nn.Parameter] = {id(p): p for p in params if p.requires_grad}
-    return list(unique.values())
-
-
-# ---------------------------------------------------------------------- hyperparameter validation
-def _is_environment(value: Any) -> bool:
-    if value is None or isinstance(value, str | VecEnv):  # None: SB3's `load` builds the model before the env is set
-        return True
-    return all(hasattr(value, name) for name in ("reset", "step", "observation_space", "action_space"))
-
-
-def _is_device(value: Any) -> bool:
-    if isinstance(value, th.device):
-        return True
-    if not isinstance(value, str):
-        return False
-    if value == "auto":
-        return True
-    try:
-        th.device(value)
-    except RuntimeError:
-        return False
-    return True
-
-
-HYPERPARAMETER_RULES: dict[str, Rule] = {
-    "policy": Rule(
-        lambda value: (
-            (isinstance(value, str) and value in TRPO.policy_aliases)
-            or (isinstance(value, type) and issubclass(value, ActorCriticPolicy))
-        ),
-        f"one of {sorted(TRPO.policy_aliases)} or an ActorCriticPolicy subclass",
-    ),
-    "env": Rule(_is_environment, "an environment id (str), a Gymnasium environment or a VecEnv"),
-    "learning_rate": number(lambda x: x > 0, "> 0", schedule=True),
-    "n_steps": integer(1),
-    "batch_size": integer(1),
-    "gamma": number(lambda x: 0.0 <= x <= 1.0, "in [0, 1]"),
-    "cg_max_steps": integer(1),
-    "cg_damping": number(lambda x: x >= 0, ">= 0"),
-    "line_search_shrinking_factor": number(lambda x: 0.0 < x < 1.0, "in the open interval (0, 1)"),
-    "line_search_max_iter": integer(1),
-    "n_critic_updates": integer(0),
-    "gae_lambda": number(lambda x: 0.0 <= x <= 1.0, "in [0, 1]"),
-    "use_sde": boolean(),
-    "sde_sample_freq": integer(-1),
-    "rollout_buffer_class": Rule(
-        lambda value: (
-            value is None or (isinstance(value, type) and issubclass(value, SegmentRolloutBuffer | SegmentDictRolloutBuffer))
-        ),
-        "None or a subclass of sb3_trpo_plus.segment.SegmentRolloutBuffer or SegmentDictRolloutBuffer (TRPOPlus fills "
-        "its buffer from collected segments)",
-    ),
-    "rollout_buffer_kwargs": optional(dict, "a dict"),
-    "normalize_advantage": boolean(),
-    "target_kl": number(lambda x: x > 0, "> 0", schedule=True),
-    "sub_sampling_factor": integer(1),
-    "fisher_sub_sampling": integer(1),
-    "replay_memory": integer(0),
-    "sample_reuse": Rule(lambda value: isinstance(value, str) and value in SAMPLE_REUSE, f"one of {SAMPLE_REUSE}"),
-    "reuse_batches": number(lambda x: x >= 1, ">= 1"),
-    "reuse_max_batches": integer(1),
-    "reuse_trace_clip": number(lambda x: x > 0, "> 0"),
-    "reuse_kl_vary": boolean(),
-    "replay_is_clip": number(lambda x: x > 0, "> 0", optional=True),
-    "replay_critic": boolean(),
-    "cg_warm_start": boolean(),
-    "cg_warm_start_rescale": boolean(),
-    "value_baseline": Rule(lambda value: isinstance(value, str) and value in VALUE_BASELINES, f"one of {VALUE_BASELINES}"),
-    "linear_baseline_l2": number(lambda x: x >= 0, ">= 0"),
-    "stats_window_size": integer(1),
-    "tensorboard_log": optional(str | os.PathLike, "a folder path"),
-    "policy_kwargs": optional(dict, "a dict"),
-    "verbose": integer(0),
-    "seed": integer(0, optional=True),
-    "device": Rule(_is_device, "a torch.device or a device name ('auto', 'cpu', 'cuda', ...)"),
-    "_init_setup_model": boolean(),
-}
-"""Every constructor argument of :class:`TRPOPlus` and what it accepts.
-
-Booleans are ``bool`` only; integers are ``int`` (or numpy integers), never ``bool`` or ``float``; numbers are
-finite ``int`` or ``float`` (or numpy numbers), never ``bool`` or ``str``, or a schedule where SB3 takes one;
-``None`` only where the default is ``None`` (and ``env``, which SB3's ``load`` sets after construction).
-"""
-
-
-def validate_hyperparameters(**hyperparameters: Any) -> None:
-    """Raise ``ValueError`` naming the first hyperparameter that breaks its rule in ``HYPERPARAMETER_RULES``."""
-    for name, value in hyperparameters.items():
-        rule = HYPERPARAMETER_RULES.get(name)
-        if rule is None:
-            raise TypeError(f"TRPOPlus has no hyperparameter `{name}`")
-        if not rule.accepts(value):
-            raise ValueError(f"TRPOPlus hyperparameter `{name}` must be {rule.requirement}, got {value!r}")
-
-
-def _float_or_schedule(value: float | Schedule) -> float | Schedule:
-    """A validated number as a Python float (SB3's ``FloatSchedule`` takes int and float only), a schedule as is."""
-    return value if callable(value) else float(value)
-
-
-# ---------------------------------------------------------------------- records of one update
-@dataclass(frozen=True)
-class ReusedBatch:
-    """A generalized update's samples: the policy batch (with sample weights) and the critic's data.
-
-    :param critic_observations: every sample's observation (no sub-sampling)
-    :param critic_returns: off-policy GAE targets (the fresh batch's: SB3's returns)
-    :param critic_weights: every sample's batch weight
-    :param n_batches: batches at hand, the fresh one included
-    :param radius: the update's trust-region radius
-    :param offpolicy_tv: ``mean(w * |pi_current / q - 1|) / 2``, how far the current policy is from the stored batches'
-    """
-
-    batch: PolicyBatch
-    critic_observations: th.Tensor
-    critic_returns: th.Tensor
-    critic_weights: th.Tensor
-    n_batches: int
-    radius: float
-    offpolicy_tv: float
-
-
-@dataclass(frozen=True)
-class UpdateTimings:
-    """Seconds of an update's phases: advantages and the batch (``prepare``: the linear baseline, the replayed
-    segments evaluated again), the policy step, the value baseline's fit (and the memory)."""
-
-    prepare: float
-    policy: float
-    value: float
-
-
-@dataclass(frozen=True)
-class ValueFit:
-    """Outcome of the value-baseline fit of one update.
-
-    :param loss: mean squared error to the returns (mean over the critic's minibatches; NaN if none was finite)
-    :param skipped_steps: critic steps skipped for a non-finite loss
-    """
-
-    loss: float
-    skipped_steps: int
 
 
 class TRPOPlus(TRPO):
@@ -354,13 +193,13 @@ class TRPOPlus(TRPO):
             if n_steps * n_envs <= 1:
                 raise ValueError(f"TRPOPlus needs `n_steps * n_envs` > 1 to normalise advantages, got {n_steps} * {n_envs}")
         super().__init__(
-            policy, env, learning_rate=_float_or_schedule(learning_rate), n_steps=n_steps, batch_size=batch_size,
+            policy, env, learning_rate=float_or_schedule(learning_rate), n_steps=n_steps, batch_size=batch_size,
             gamma=gamma, cg_max_steps=cg_max_steps, cg_damping=cg_damping,
             line_search_shrinking_factor=line_search_shrinking_factor, line_search_max_iter=line_search_max_iter,
             n_critic_updates=n_critic_updates, gae_lambda=gae_lambda, use_sde=use_sde,
             sde_sample_freq=sde_sample_freq, rollout_buffer_class=rollout_buffer_class,
             rollout_buffer_kwargs=rollout_buffer_kwargs, normalize_advantage=normalize_advantage,
-            target_kl=_float_or_schedule(target_kl),  # type: ignore[arg-type]  # a schedule too (sb3-contrib's TRPO only stores it)
+            target_kl=float_or_schedule(target_kl),  # type: ignore[arg-type]  # a schedule too (sb3-contrib's TRPO only stores it)
             sub_sampling_factor=sub_sampling_factor, stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose, seed=seed,
             device=device, _init_setup_model=False,
@@ -595,14 +434,25 @@ class TRPOPlus(TRPO):
         self._update_target_kl()
         if self.value_baseline == "linear":
             self._write_linear_baseline_advantages(segment)
-        if self.sample_reuse == "generalized":
-            reused = self._generalized_batch()
-            batch, replayed = reused.batch, []
+        reuse = self.reuse
+        if reuse is not None:
+            settings = ReuseSettings(reuse, self.reuse_trace_clip, self.reuse_kl_vary)
+            stored = list(reversed(self.rollout_memory or []))  # newest first
+            reused = generalized_batch(
+                self.policy, next(self.rollout_buffer.get(batch_size=None)), stored, self._reevaluate, settings,
+                self.current_target_kl, self.action_tensor, self.sub_sampling_factor,
+            )  # fmt: skip
+            batch = reused.batch
             prepared = time.perf_counter()
             policy_step = self.update_policy(batch, reused.radius)
             stepped = time.perf_counter()
-            value_fit = self._fit_weighted_critic(reused) if batch.n_replayed else self._update_value_baseline(segment, [])
-            self._log_reuse(reused)
+            if batch.n_replayed:
+                value_fit = fit_weighted_critic(self.policy, reused, self.n_critic_updates, self.batch_size, self._critic_step)
+            else:
+                value_fit = self._update_value_baseline(segment, [])
+            self.logger.record("train/reuse_batches", reused.n_batches)
+            self.logger.record("train/reuse_radius", reused.radius)
+            self.logger.record("train/reuse_offpolicy_tv", reused.offpolicy_tv)
         else:
             # Re-evaluate the stored rollouts once: the value function does not change before the critic fit
             replayed = self._reevaluate_memory()
@@ -612,7 +462,7 @@ class TRPOPlus(TRPO):
             stepped = time.perf_counter()
             value_fit = self._update_value_baseline(segment, replayed)
         self.previous_step = policy_step.applied_step  # the next update's CG warm start
-        if self.replay_memory > 0 or (self.reuse is not None and self.reuse.n_batches > 1):
+        if self.replay_memory > 0 or (reuse is not None and reuse.n_batches > 1):
             assert self.rollout_memory is not None
             self.rollout_memory.append(segment)
         self._n_updates += 1
@@ -701,80 +551,6 @@ class TRPOPlus(TRPO):
             n_current=n_current,
         )
 
-    def _generalized_batch(self) -> ReusedBatch:
-        """The fresh segment (as SB3 buffered it) and the stored ones, newest first, for a generalized update: each
-        stored segment evaluated now (current statistics and critic) with off-policy GAE whose traces are the current
-        policy's truncated importance ratios; every sample weighted by its batch's age (:class:`ReuseWeights`)."""
-        reuse = self.reuse
-        assert reuse is not None
-        current = next(self.rollout_buffer.get(batch_size=None))
-        stored = list(reversed(self.rollout_memory or []))
-        weights = reuse.per_sample(1 + len(stored))
-        n_current = len(current.advantages)
-        observations, actions, sampling = [current.observations], [current.actions], [current.old_log_prob]
-        advantages, returns = [current.advantages], [current.returns]
-        sample_weights = [th.full((n_current,), float(weights[0]), device=self.device)]
-        for age, segment in enumerate(stored, start=1):
-            as_buffered = segment.actions.reshape(segment.n_samples, -1).astype(np.float32)  # the buffer's actions
-            stored_actions = th.as_tensor(as_buffered, device=self.device)
-            behaviour = th.as_tensor(segment.log_probs.reshape(-1), device=self.device)
-            evaluation = self._reevaluate(segment, trace_ratios=self._trace_ratios(segment, stored_actions, behaviour))
-            observations.append(self.policy.obs_to_tensor(evaluation.observations)[0])  # type: ignore[arg-type]
-            actions.append(stored_actions)
-            sampling.append(behaviour)
-            advantages.append(th.as_tensor(evaluation.advantages.reshape(-1), device=self.device))
-            returns.append(th.as_tensor(evaluation.returns.reshape(-1), device=self.device))
-            sample_weights.append(th.full((segment.n_samples,), float(weights[age]), device=self.device))
-        all_observations, all_actions = th.cat(observations), th.cat(actions)
-        all_sampling, all_weights = th.cat(sampling), th.cat(sample_weights)
-        with th.no_grad():  # how far the current policy already is from the ones that collected the stored batches
-            log_prob = self.policy.get_distribution(all_observations).log_prob(self.action_tensor(all_actions))
-        offpolicy = th.exp(th.clamp(log_prob - all_sampling, -50.0, 50.0))
-        offpolicy[:n_current] = 1.0
-        spent = float((all_weights * (offpolicy - 1.0).abs()).mean())
-        if self.reuse_kl_vary:
-            radius = max(math.sqrt(2.0 * self.current_target_kl) - spent, 0.0) ** 2 / 2.0
-        else:
-            radius = self.current_target_kl * reuse.trust_scale**2
-        k = self.sub_sampling_factor
-        batch = PolicyBatch(
-            observations=all_observations[::k], actions=all_actions[::k], sampling_log_prob=all_sampling[::k],
-            advantages=th.cat(advantages)[::k], n_current=len(range(0, n_current, k)), sample_weights=all_weights[::k],
-        )  # fmt: skip
-        return ReusedBatch(
-            batch=batch, critic_observations=all_observations, critic_returns=th.cat(returns), critic_weights=all_weights,
-            n_batches=1 + len(stored), radius=radius, offpolicy_tv=spent / 2.0,
-        )  # fmt: skip
-
-    def _trace_ratios(self, segment: Segment, actions: th.Tensor, behaviour: th.Tensor) -> Callable[[np.ndarray], np.ndarray]:
-        """``c_t = min(pi_current / q, reuse_trace_clip)`` of ``segment``'s actions, from its normalised observations."""
-
-        def ratios(flat_observations: np.ndarray) -> np.ndarray:
-            with th.no_grad():
-                distribution = self.policy.get_distribution(self.policy.obs_to_tensor(flat_observations)[0])
-                log_prob = distribution.log_prob(self.action_tensor(actions))
-            ratio = th.exp(th.clamp(log_prob - behaviour, -50.0, 50.0)).cpu().numpy()
-            return np.minimum(ratio, self.reuse_trace_clip).reshape(segment.n_steps, segment.n_envs)
-
-        return ratios
-
-    def _fit_weighted_critic(self, reused: ReusedBatch) -> ValueFit:
-        """Critic epochs on every reused sample: weighted squared error to the off-policy GAE targets (GePPO's
-        critic), minibatches of ``batch_size`` from one permutation per epoch."""
-        observations, returns, weights = reused.critic_observations, reused.critic_returns, reused.critic_weights
-        losses, skipped = [], 0
-        for _ in range(self.n_critic_updates):
-            order = th.as_tensor(np.random.permutation(len(returns)), device=self.device)
-            for start in range(0, len(returns), self.batch_size):
-                idx = order[start : start + self.batch_size]
-                values = self.policy.predict_values(observations[idx]).flatten()
-                loss = self._critic_step((weights[idx] * (returns[idx] - values) ** 2).mean())
-                if loss is None:
-                    skipped += 1
-                else:
-                    losses.append(loss)
-        return ValueFit(loss=float(np.mean(losses)) if losses else math.nan, skipped_steps=skipped)
-
     def _critic_step(self, value_loss: th.Tensor) -> float | None:
         """One Adam step of the critic on ``value_loss``; the actor's parameters move by the trust-region step only.
         A non-finite loss (finite inputs and weights give finite gradients: the one way in) is skipped: None."""
@@ -787,11 +563,6 @@ class TRPOPlus(TRPO):
             param.grad = None
         self.policy.optimizer.step()
         return loss
-
-    def _log_reuse(self, reused: ReusedBatch) -> None:
-        self.logger.record("train/reuse_batches", reused.n_batches)
-        self.logger.record("train/reuse_radius", reused.radius)
-        self.logger.record("train/reuse_offpolicy_tv", reused.offpolicy_tv)
 
     def action_tensor(self, actions: th.Tensor) -> th.Tensor:
         """The batch's actions as the policy's distribution takes them (indices for a ``Discrete`` space)."""

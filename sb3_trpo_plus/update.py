@@ -27,6 +27,28 @@ from sb3_trpo_plus.natural_gradient import (
 from sb3_trpo_plus.replay import effective_sample_size, importance_weights
 
 
+def actor_parameters(policy: ActorCriticPolicy) -> list[nn.Parameter]:
+    """The parameters that define the action distribution, selected through the policy's modules.
+
+    Features extractor (shared or actor-only), the actor MLP, the action head and a state-independent
+    log-std. The value head and the critic MLP are never included.
+    """
+    mlp_extractor = policy.mlp_extractor
+    if not hasattr(mlp_extractor, "policy_net"):
+        raise TypeError(
+            f"{type(mlp_extractor).__name__} has no `policy_net`: TRPOPlus needs SB3's MlpExtractor layout "
+            "to tell actor parameters from critic parameters"
+        )
+    extractor = policy.features_extractor if policy.share_features_extractor else policy.pi_features_extractor
+    modules: list[nn.Module] = [extractor, mlp_extractor.policy_net, policy.action_net]
+    params: list[nn.Parameter] = [p for module in modules for p in module.parameters()]
+    log_std = getattr(policy, "log_std", None)
+    if isinstance(log_std, nn.Parameter):
+        params.append(log_std)
+    unique: dict[int, nn.Parameter] = {id(p): p for p in params if p.requires_grad}
+    return list(unique.values())
+
+
 # ---------------------------------------------------------------------------------------------------- records
 @dataclass(frozen=True)
 class PolicyBatch:
@@ -236,3 +258,25 @@ def natural_gradient_step(
 def _cosine(a: th.Tensor, b: th.Tensor) -> float:
     denominator = float(th.linalg.vector_norm(a) * th.linalg.vector_norm(b))
     return float(th.dot(a, b)) / denominator if denominator > 0 else 0.0
+
+
+@dataclass(frozen=True)
+class UpdateTimings:
+    """Seconds of an update's phases: advantages and the batch (``prepare``: the linear baseline, the replayed
+    segments evaluated again), the policy step, the value baseline's fit (and the memory)."""
+
+    prepare: float
+    policy: float
+    value: float
+
+
+@dataclass(frozen=True)
+class ValueFit:
+    """Outcome of the value-baseline fit of one update.
+
+    :param loss: mean squared error to the returns (mean over the critic's minibatches; NaN if none was finite)
+    :param skipped_steps: critic steps skipped for a non-finite loss
+    """
+
+    loss: float
+    skipped_steps: int

@@ -115,3 +115,14 @@ def test_an_episode_end_cuts_the_trace() -> None:
     data["last_values"] += 100.0
     b, _ = vtrace_gae(**data, trace_ratios=ratios, gamma=0.9, gae_lambda=0.8)
     np.testing.assert_array_equal(a[:6], b[:6])
+
+
+def test_the_generalized_radius_by_hand() -> None:
+    """``target_kl * trust_scale**2`` (B = 2: 0.01 / 4), or GeTRPO's eps_vary: ``(sqrt(2 * 0.01) - spent)**2 / 2``,
+    and 0 once the spent distance reaches epsilon."""
+    from sb3_trpo_plus.generalized import reuse_radius
+
+    assert reuse_radius(0.01, 0.5, spent=0.3, kl_vary=False) == pytest.approx(0.0025, rel=1e-12)
+    assert reuse_radius(0.01, 0.5, spent=0.04, kl_vary=True) == pytest.approx((0.1414213562373095 - 0.04) ** 2 / 2, rel=1e-12)
+    assert reuse_radius(0.01, 0.5, spent=0.0, kl_vary=True) == pytest.approx(0.01, rel=1e-12)
+    assert reuse_radius(0.01, 0.5, spent=0.2, kl_vary=True) == 0.0

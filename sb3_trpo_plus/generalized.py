@@ -1,0 +1,164 @@
+"""The generalized update's data (GeTRPO): the fresh batch and the stored ones weighted by age, their off-policy
+advantages, the trust-region radius, and the weighted critic fit.
+
+``TRPOPlus(sample_reuse="generalized")`` calls :func:`generalized_batch` and :func:`fit_weighted_critic` each update;
+the numerics they rest on (the batch weights, off-policy GAE) are in :mod:`sb3_trpo_plus.reuse`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.type_aliases import RolloutBufferSamples
+
+from sb3_trpo_plus.replay import RolloutEvaluation
+from sb3_trpo_plus.reuse import ReuseWeights
+from sb3_trpo_plus.segment import Segment
+from sb3_trpo_plus.update import PolicyBatch, ValueFit
+
+TraceRatios = Callable[[np.ndarray], np.ndarray]
+"""The traces of one stored segment's off-policy GAE, from its normalised observations (flat): ``(n_steps, n_envs)``."""
+
+
+@dataclass(frozen=True)
+class ReuseSettings:
+    """How a generalized update reuses its batches.
+
+    :param weights: the batch weights (``sb3_trpo_plus.reuse.reuse_weights``)
+    :param trace_clip: truncation of the importance ratios that carry off-policy GAE's traces (V-trace: 1)
+    :param kl_vary: the radius ``epsilon = sqrt(2 target_kl)`` less the weighted mean ``|pi_current / q - 1|``
+        already spent (GeTRPO's ``eps_vary``), instead of ``target_kl * trust_scale**2``
+    """
+
+    weights: ReuseWeights
+    trace_clip: float = 1.0
+    kl_vary: bool = False
+
+
+@dataclass(frozen=True)
+class ReusedBatch:
+    """A generalized update's samples: the policy batch (with sample weights) and the critic's data.
+
+    :param critic_observations: every sample's observation (no sub-sampling)
+    :param critic_returns: off-policy GAE targets (the fresh batch's: SB3's returns)
+    :param critic_weights: every sample's batch weight
+    :param n_batches: batches at hand, the fresh one included
+    :param radius: the update's trust-region radius
+    :param offpolicy_tv: ``mean(w * |pi_current / q - 1|) / 2``, how far the current policy is from the stored batches'
+    """
+
+    batch: PolicyBatch
+    critic_observations: th.Tensor
+    critic_returns: th.Tensor
+    critic_weights: th.Tensor
+    n_batches: int
+    radius: float
+    offpolicy_tv: float
+
+
+def reuse_radius(target_kl: float, trust_scale: float, spent: float, kl_vary: bool) -> float:
+    """The KL radius of a generalized update: ``target_kl * trust_scale**2`` (``epsilon = sqrt(2 target_kl)`` scaled
+    by ``1 / B``), or with ``kl_vary`` ``(sqrt(2 target_kl) - spent)**2 / 2`` (0 once ``spent`` reaches epsilon)."""
+    if kl_vary:
+        return max(math.sqrt(2.0 * target_kl) - spent, 0.0) ** 2 / 2.0
+    return target_kl * trust_scale**2
+
+
+def log_prob_of(policy: ActorCriticPolicy, observations: th.Tensor, actions: th.Tensor, action_tensor: Callable) -> th.Tensor:
+    """The current policy's log-probabilities of ``actions`` at ``observations``, without gradients."""
+    with th.no_grad():
+        return policy.get_distribution(observations).log_prob(action_tensor(actions))
+
+
+def truncated_trace_ratios(
+    policy: ActorCriticPolicy, segment: Segment, actions: th.Tensor, behaviour: th.Tensor, clip: float, action_tensor: Callable
+) -> TraceRatios:
+    """``c_t = min(pi_current / q, clip)`` of ``segment``'s ``actions`` (behaviour log-probabilities ``behaviour``)."""
+
+    def ratios(flat_observations: np.ndarray) -> np.ndarray:
+        observations = policy.obs_to_tensor(flat_observations)[0]
+        log_prob = log_prob_of(policy, observations, actions, action_tensor)  # type: ignore[arg-type]
+        ratio = th.exp(th.clamp(log_prob - behaviour, -50.0, 50.0)).cpu().numpy()
+        return np.minimum(ratio, clip).reshape(segment.n_steps, segment.n_envs)
+
+    return ratios
+
+
+def generalized_batch(
+    policy: ActorCriticPolicy,
+    current: RolloutBufferSamples,
+    stored: Sequence[Segment],
+    evaluate: Callable[[Segment, TraceRatios], RolloutEvaluation],
+    settings: ReuseSettings,
+    target_kl: float,
+    action_tensor: Callable[[th.Tensor], th.Tensor],
+    sub_sampling: int = 1,
+) -> ReusedBatch:
+    """The fresh batch ``current`` (as SB3 buffered it) and the ``stored`` segments, newest first, for one generalized
+    update: each stored segment evaluated now by ``evaluate`` (current statistics and critic) with off-policy GAE whose
+    traces are the current policy's truncated importance ratios; every sample weighted by its batch's age; the policy
+    batch on every ``sub_sampling``-th sample, the critic's on all."""
+    device = current.advantages.device
+    weights = settings.weights.per_sample(1 + len(stored))
+    n_current = len(current.advantages)
+    observations, actions, sampling = [current.observations], [current.actions], [current.old_log_prob]
+    advantages, returns = [current.advantages], [current.returns]
+    sample_weights = [th.full((n_current,), float(weights[0]), device=device)]
+    for age, segment in enumerate(stored, start=1):
+        as_buffered = segment.actions.reshape(segment.n_samples, -1).astype(np.float32)  # the buffer's actions
+        stored_actions = th.as_tensor(as_buffered, device=device)
+        behaviour = th.as_tensor(segment.log_probs.reshape(-1), device=device)
+        traces = truncated_trace_ratios(policy, segment, stored_actions, behaviour, settings.trace_clip, action_tensor)
+        evaluation = evaluate(segment, traces)
+        observations.append(policy.obs_to_tensor(evaluation.observations)[0])  # type: ignore[arg-type]
+        actions.append(stored_actions)
+        sampling.append(behaviour)
+        advantages.append(th.as_tensor(evaluation.advantages.reshape(-1), device=device))
+        returns.append(th.as_tensor(evaluation.returns.reshape(-1), device=device))
+        sample_weights.append(th.full((segment.n_samples,), float(weights[age]), device=device))
+    all_observations, all_actions = th.cat(observations), th.cat(actions)
+    all_sampling, all_weights = th.cat(sampling), th.cat(sample_weights)
+    # how far the current policy already is from the ones that collected the stored batches
+    offpolicy = th.exp(th.clamp(log_prob_of(policy, all_observations, all_actions, action_tensor) - all_sampling, -50.0, 50.0))
+    offpolicy[:n_current] = 1.0
+    spent = float((all_weights * (offpolicy - 1.0).abs()).mean())
+    k = sub_sampling
+    batch = PolicyBatch(
+        observations=all_observations[::k], actions=all_actions[::k], sampling_log_prob=all_sampling[::k],
+        advantages=th.cat(advantages)[::k], n_current=len(range(0, n_current, k)), sample_weights=all_weights[::k],
+    )  # fmt: skip
+    return ReusedBatch(
+        batch=batch, critic_observations=all_observations, critic_returns=th.cat(returns), critic_weights=all_weights,
+        n_batches=1 + len(stored), radius=reuse_radius(target_kl, settings.weights.trust_scale, spent, settings.kl_vary),
+        offpolicy_tv=spent / 2.0,
+    )  # fmt: skip
+
+
+def fit_weighted_critic(
+    policy: ActorCriticPolicy,
+    reused: ReusedBatch,
+    n_epochs: int,
+    batch_size: int,
+    critic_step: Callable[[th.Tensor], float | None],
+) -> ValueFit:
+    """``n_epochs`` critic epochs on every reused sample: weighted squared error to the off-policy GAE targets (GePPO's
+    critic), minibatches of ``batch_size`` from one permutation per epoch (numpy's global generator, as SB3's
+    buffers), each loss handed to ``critic_step`` (one optimiser step; None where it skipped a non-finite loss)."""
+    observations, returns, weights = reused.critic_observations, reused.critic_returns, reused.critic_weights
+    losses, skipped = [], 0
+    for _ in range(n_epochs):
+        order = th.as_tensor(np.random.permutation(len(returns)), device=returns.device)
+        for start in range(0, len(returns), batch_size):
+            idx = order[start : start + batch_size]
+            values = policy.predict_values(observations[idx]).flatten()
+            loss = critic_step((weights[idx] * (returns[idx] - values) ** 2).mean())
+            if loss is None:
+                skipped += 1
+            else:
+                losses.append(loss)
+    return ValueFit(loss=float(np.mean(losses)) if losses else math.nan, skipped_steps=skipped)

@@ -1,0 +1,114 @@
+"""What every constructor argument of :class:`~sb3_trpo_plus.TRPOPlus` accepts, and the check that names a bad one."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import torch as th
+from sb3_contrib import TRPO
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.type_aliases import Schedule
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_trpo_plus.arguments import Rule, boolean, integer, number, optional
+from sb3_trpo_plus.segment import SegmentDictRolloutBuffer, SegmentRolloutBuffer
+
+VALUE_BASELINES = ("critic", "linear")
+SAMPLE_REUSE = ("none", "generalized")
+
+
+def _is_environment(value: Any) -> bool:
+    if value is None or isinstance(value, str | VecEnv):  # None: SB3's `load` builds the model before the env is set
+        return True
+    return all(hasattr(value, name) for name in ("reset", "step", "observation_space", "action_space"))
+
+
+def _is_device(value: Any) -> bool:
+    if isinstance(value, th.device):
+        return True
+    if not isinstance(value, str):
+        return False
+    if value == "auto":
+        return True
+    try:
+        th.device(value)
+    except RuntimeError:
+        return False
+    return True
+
+
+HYPERPARAMETER_RULES: dict[str, Rule] = {
+    "policy": Rule(
+        lambda value: (
+            (isinstance(value, str) and value in TRPO.policy_aliases)
+            or (isinstance(value, type) and issubclass(value, ActorCriticPolicy))
+        ),
+        f"one of {sorted(TRPO.policy_aliases)} or an ActorCriticPolicy subclass",
+    ),
+    "env": Rule(_is_environment, "an environment id (str), a Gymnasium environment or a VecEnv"),
+    "learning_rate": number(lambda x: x > 0, "> 0", schedule=True),
+    "n_steps": integer(1),
+    "batch_size": integer(1),
+    "gamma": number(lambda x: 0.0 <= x <= 1.0, "in [0, 1]"),
+    "cg_max_steps": integer(1),
+    "cg_damping": number(lambda x: x >= 0, ">= 0"),
+    "line_search_shrinking_factor": number(lambda x: 0.0 < x < 1.0, "in the open interval (0, 1)"),
+    "line_search_max_iter": integer(1),
+    "n_critic_updates": integer(0),
+    "gae_lambda": number(lambda x: 0.0 <= x <= 1.0, "in [0, 1]"),
+    "use_sde": boolean(),
+    "sde_sample_freq": integer(-1),
+    "rollout_buffer_class": Rule(
+        lambda value: (
+            value is None or (isinstance(value, type) and issubclass(value, SegmentRolloutBuffer | SegmentDictRolloutBuffer))
+        ),
+        "None or a subclass of sb3_trpo_plus.segment.SegmentRolloutBuffer or SegmentDictRolloutBuffer (TRPOPlus fills "
+        "its buffer from collected segments)",
+    ),
+    "rollout_buffer_kwargs": optional(dict, "a dict"),
+    "normalize_advantage": boolean(),
+    "target_kl": number(lambda x: x > 0, "> 0", schedule=True),
+    "sub_sampling_factor": integer(1),
+    "fisher_sub_sampling": integer(1),
+    "replay_memory": integer(0),
+    "sample_reuse": Rule(lambda value: isinstance(value, str) and value in SAMPLE_REUSE, f"one of {SAMPLE_REUSE}"),
+    "reuse_batches": number(lambda x: x >= 1, ">= 1"),
+    "reuse_max_batches": integer(1),
+    "reuse_trace_clip": number(lambda x: x > 0, "> 0"),
+    "reuse_kl_vary": boolean(),
+    "replay_is_clip": number(lambda x: x > 0, "> 0", optional=True),
+    "replay_critic": boolean(),
+    "cg_warm_start": boolean(),
+    "cg_warm_start_rescale": boolean(),
+    "value_baseline": Rule(lambda value: isinstance(value, str) and value in VALUE_BASELINES, f"one of {VALUE_BASELINES}"),
+    "linear_baseline_l2": number(lambda x: x >= 0, ">= 0"),
+    "stats_window_size": integer(1),
+    "tensorboard_log": optional(str | os.PathLike, "a folder path"),
+    "policy_kwargs": optional(dict, "a dict"),
+    "verbose": integer(0),
+    "seed": integer(0, optional=True),
+    "device": Rule(_is_device, "a torch.device or a device name ('auto', 'cpu', 'cuda', ...)"),
+    "_init_setup_model": boolean(),
+}
+"""Every constructor argument of :class:`TRPOPlus` and what it accepts.
+
+Booleans are ``bool`` only; integers are ``int`` (or numpy integers), never ``bool`` or ``float``; numbers are
+finite ``int`` or ``float`` (or numpy numbers), never ``bool`` or ``str``, or a schedule where SB3 takes one;
+``None`` only where the default is ``None`` (and ``env``, which SB3's ``load`` sets after construction).
+"""
+
+
+def validate_hyperparameters(**hyperparameters: Any) -> None:
+    """Raise ``ValueError`` naming the first hyperparameter that breaks its rule in ``HYPERPARAMETER_RULES``."""
+    for name, value in hyperparameters.items():
+        rule = HYPERPARAMETER_RULES.get(name)
+        if rule is None:
+            raise TypeError(f"TRPOPlus has no hyperparameter `{name}`")
+        if not rule.accepts(value):
+            raise ValueError(f"TRPOPlus hyperparameter `{name}` must be {rule.requirement}, got {value!r}")
+
+
+def float_or_schedule(value: float | Schedule) -> float | Schedule:
+    """A validated number as a Python float (SB3's ``FloatSchedule`` takes int and float only), a schedule as is."""
+    return value if callable(value) else float(value)
