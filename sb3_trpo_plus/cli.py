@@ -94,7 +94,7 @@ def train(argv: Sequence[str]) -> None:
     known, rest = parser.parse_known_args(argv)
     if "-h" in rest or "--help" in rest:
         parser.print_help()
-    import grasp_envs
+    from sb3_trpo_plus.engines import batch_engine_ids, has_batch_engine
     from sb3_trpo_plus.experiment import zoo_train
 
     if known.sim_threads < 0:
@@ -119,10 +119,10 @@ def train(argv: Sequence[str]) -> None:
         known.vec_env = "dummy"
     else:
         if known.vec_env is None:  # the same transitions as dummy, faster from a few envs on
-            known.vec_env = "batch" if grasp_envs.has_batch_engine(known.env) else "dummy"
+            known.vec_env = "batch" if has_batch_engine(known.env) else "dummy"
         if known.vec_env == "batch":
-            if not grasp_envs.has_batch_engine(known.env):
-                ids = ", ".join(grasp_envs.ENV_IDS)
+            if not has_batch_engine(known.env):
+                ids = ", ".join(batch_engine_ids())
                 parser.error(f"--vec-env batch runs the tasks of grasp_envs ({ids}), got {known.env}")
             from sb3_trpo_plus.zoo import batch_training_env
 

@@ -65,21 +65,19 @@ def make_model(
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecFrameStack, VecNormalize
 
-    import grasp_envs
+    from sb3_trpo_plus.engines import batch_engine_ids, batch_envs, has_batch_engine
 
     if vec_env not in ("auto", "batch", "dummy"):
         raise ValueError(f"vec_env must be 'auto', 'batch' or 'dummy', got {vec_env!r}")
-    if vec_env == "batch" and not grasp_envs.has_batch_engine(env_id):
-        raise ValueError(f"vec_env='batch' runs the tasks of grasp_envs ({', '.join(grasp_envs.ENV_IDS)}), got {env_id!r}")
+    if vec_env == "batch" and not has_batch_engine(env_id):
+        raise ValueError(f"vec_env='batch' runs the tasks of grasp_envs ({', '.join(batch_engine_ids())}), got {env_id!r}")
     params = {**recipe(env_id, algo), **overrides}
     env: Any
-    if vec_env == "batch" or (vec_env == "auto" and grasp_envs.has_batch_engine(env_id)):
-        scripted = _scripted_starts(params.get("env_wrapper"))
-        env = grasp_envs.make_batch_env(
-            env_id, int(params.get("n_envs", 1)), seed=seed, n_threads=sim_threads,
+    if vec_env == "batch" or (vec_env == "auto" and has_batch_engine(env_id)):
+        env = batch_envs(
+            env_id, int(params.get("n_envs", 1)), seed=seed, n_threads=sim_threads, env_kwargs=params.get("env_kwargs"),
+            scripted_starts=_scripted_starts(params.get("env_wrapper")),
             info_keywords=(params.get("monitor_kwargs") or {}).get("info_keywords", ()),
-            wrapper_class=grasp_envs.ScriptedStarts if scripted is not None else None, wrapper_kwargs=scripted,
-            **(params.get("env_kwargs") or {}),
         )  # fmt: skip
     else:
         env = make_vec_env(

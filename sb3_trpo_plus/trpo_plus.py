@@ -80,7 +80,7 @@ class TRPOPlus(TRPO):
 
     :param policy: The policy model to use (MlpPolicy, CnnPolicy, ...)
     :param env: The environment to learn from (if registered in Gymnasium, can be str;
-        ``grasp_envs`` ids work without importing it)
+        ``grasp_envs`` ids work once ``sb3_trpo_plus`` is imported, which registers them)
     :param learning_rate: Learning rate of the critic's Adam optimizer (or a schedule of the remaining progress)
     :param n_steps: Steps per environment per rollout (rollout = ``n_steps * n_envs`` samples)
     :param batch_size: Minibatch size of the critic updates
@@ -186,8 +186,6 @@ class TRPOPlus(TRPO):
     ):
         arguments = dict(locals())  # every constructor argument, by name, before anything else is bound
         validate_hyperparameters(**{name: arguments[name] for name in HYPERPARAMETER_RULES})
-        if isinstance(env, str):
-            import grasp_envs  # noqa: F401  (registers our ids so that a bare id string works)
         if env is not None and not isinstance(env, str) and normalize_advantage:
             n_envs = env.num_envs if isinstance(env, VecEnv) else 1
             if n_steps * n_envs <= 1:

@@ -344,16 +344,13 @@ def batch_training_env(
     """
     import os
 
-    from grasp_envs import make_batch_env
-    from grasp_envs.wrappers import ScriptedStarts
+    from sb3_trpo_plus.engines import batch_envs
 
-    scripted = _scripted_starts_of(wrapper_class, "--vec-env batch")
-    return make_batch_env(
-        env_id, n_envs, seed=seed, n_threads=n_threads, monitor=True,
-        monitor_file=None if monitor_dir is None else os.path.join(monitor_dir, "batch"),
+    return batch_envs(
+        env_id, n_envs, seed=seed, n_threads=n_threads, env_kwargs=env_kwargs,
+        scripted_starts=_scripted_starts_of(wrapper_class, "--vec-env batch"),
         info_keywords=(monitor_kwargs or {}).get("info_keywords", ()),
-        wrapper_class=ScriptedStarts if scripted is not None else None, wrapper_kwargs=scripted,
-        **(env_kwargs or {}),
+        monitor_file=None if monitor_dir is None else os.path.join(monitor_dir, "batch"),
     )  # fmt: skip
 
 

@@ -82,10 +82,10 @@ class RolloutWorkers(VecEnv):
              "sim_threads": sim_threads, "env_kwargs": env_kwargs, "scripted_starts": scripted_starts,
              "info_keywords": info_keywords, "monitor_file": monitor_file, "max_restarts": max_restarts},
         )  # fmt: skip
-        import grasp_envs
+        from sb3_trpo_plus.engines import has_batch_engine
 
         if info_keywords is None:
-            info_keywords = ("is_success",) if grasp_envs.has_batch_engine(env_id) else ()
+            info_keywords = ("is_success",) if has_batch_engine(env_id) else ()
 
         module, _, name = env_id.rpartition(":")  # gymnasium's "module:Env-v0": import the module that registers it
         if module:

@@ -58,15 +58,12 @@ class WorkerEnvs:
         object.__setattr__(self, "info_keywords", tuple(self.info_keywords))  # a list is stored as a tuple
 
     def build(self) -> VecEnv:
-        import grasp_envs
+        from sb3_trpo_plus import engines
 
-        if grasp_envs.has_batch_engine(self.env_id):
-            from grasp_envs.wrappers import ScriptedStarts
-
-            return grasp_envs.make_batch_env(
-                self.env_id, self.n_envs, n_threads=self.sim_threads, info_keywords=self.info_keywords,
-                wrapper_class=ScriptedStarts if self.scripted_starts is not None else None,
-                wrapper_kwargs=self.scripted_starts, **self.env_kwargs,
+        if engines.has_batch_engine(self.env_id):
+            return engines.batch_envs(
+                self.env_id, self.n_envs, n_threads=self.sim_threads, env_kwargs=self.env_kwargs,
+                scripted_starts=self.scripted_starts, info_keywords=self.info_keywords,
             )  # fmt: skip
         if self.scripted_starts is not None:
             raise ValueError(f"scripted starts run on the tasks of grasp_envs only, not on {self.env_id!r}")
