@@ -299,19 +299,31 @@ def interval_estimates(score_dict: dict[str, Any], statistic: Any) -> Any:
     return rly.get_interval_estimates(score_dict, statistic, reps=2000, random_state=np.random.RandomState(BOOTSTRAP_SEED))
 
 
+THESIS_PAIRS = (("replay", "plain"), ("warm", "plain"), ("both", "plain"), ("both", "replay"), ("both", "warm"),
+                ("replay", "trpo"), ("replay", "ppo"), ("plain", "trpo"))  # fmt: skip
+"""The probabilities of improvement of the thesis' study (its variants: ``STUDY_VARIANTS``)."""
+
+REUSE_VARIANTS = ("generalized_reuse", "plain", "trpo", "ppo")
+REUSE_PAIRS = (("generalized_reuse", "plain"), ("generalized_reuse", "trpo"), ("generalized_reuse", "ppo"))
+"""Generalized sample reuse against plain TRPOPlus, sb3-contrib TRPO and PPO."""
+
+
 def rliable_section(
     all_runs: dict[str, dict[str, dict[int, list[dict[str, float]]]]],
     min_seeds: int = 5,
     extra_pairs: Sequence[tuple[str, str]] = (),
+    variants: Sequence[str] = STUDY_VARIANTS,
+    pairs: Sequence[tuple[str, str]] = THESIS_PAIRS,
 ) -> list[str]:
-    """IQM with stratified-bootstrap 95 % CIs and probability of improvement over the envs every variant finished.
+    """IQM with stratified-bootstrap 95 % CIs and probability of improvement over the envs where every one of
+    ``variants`` finished ``min_seeds`` seeds (by default the thesis' study variants; the diagnosis variants have
+    runs on one env only), for ``pairs`` of them.
 
     ``extra_pairs`` (e.g. a diagnosis variant against the study variant it modifies) join the probability-of-
     improvement table where both have ``min_seeds`` finished seeds on every env of the section.
     """
     from rliable import metrics
 
-    variants = STUDY_VARIANTS  # the extra diagnosis variants have runs on one env only
     envs = [env for env in all_runs if min(len(all_runs[env].get(v, {})) for v in variants) >= min_seeds]  # finished
     if not envs:
         return [f"No env has {min_seeds} finished seeds of every variant yet."]
@@ -344,9 +356,7 @@ def rliable_section(
             point, interval = estimates[kind]
             cells.append(f"{point[v][0]:.3f} [{interval[v][0][0]:.3f}, {interval[v][1][0]:.3f}]")
         lines.append(f"| {LABELS[v]} | {cells[0]} | {cells[1]} |")
-    pairs = [(a, b) for a, b in [("replay", "plain"), ("warm", "plain"), ("both", "plain"), ("both", "replay"),
-                                 ("both", "warm"), ("replay", "trpo"), ("replay", "ppo"), ("plain", "trpo")]
-             if a in variants and b in variants]  # fmt: skip
+    pairs = [(a, b) for a, b in pairs if a in variants and b in variants]
     pairs += [(a, b) for a, b in extra_pairs if all(len(all_runs[env].get(v, {})) >= n_seeds for env in envs for v in (a, b))]
     if pairs:
         lines += ["", "| P(X > Y), success area | estimate [95 % CI] |", "|---|---|"]
@@ -456,6 +466,9 @@ def write_report(out: Path, docs: Path, tables_page: Path | None = None) -> None
     aggregates = [("over the envs with 5 finished seeds of every variant", "Aggregate (rliable)")]
     scored_by_success = {env_id: runs for env_id, runs in all_runs.items() if env_id in TARGETS}
     body += ["## Aggregate (rliable)", "", *rliable_section(scored_by_success), ""]
+    aggregates.append(("generalized sample reuse against plain TRPOPlus, TRPO and PPO", "Generalized sample reuse"))
+    section = rliable_section(scored_by_success, variants=REUSE_VARIANTS, pairs=REUSE_PAIRS)
+    body += ["## Generalized sample reuse", "", *section, ""]
     for env_id, runs in all_runs.items():  # the envs with 10 seeds of every study variant, on their own
         if min(len(runs.get(v, {})) for v in STUDY_VARIANTS) >= 10:
             pairs = [(comparison.variant, comparison.baseline) for comparison in COMPARISONS]  # study.yml's
