@@ -53,7 +53,7 @@ def training_envs(
     if vec_env == "batch":
         from sb3_trpo_plus.zoo import batch_training_env
 
-        return batch_training_env(env_id, None, n_threads=1, **kwargs)
+        return batch_training_env(env_id, n_threads=1, **kwargs)
     if vec_env != "dummy":
         raise ValueError(f"vec_env must be 'dummy' or 'batch', got {vec_env!r}")
     return make_vec_env(env_id, **kwargs)

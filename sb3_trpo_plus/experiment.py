@@ -24,8 +24,9 @@ from typing import Any
 from rl_zoo3.exp_manager import ExperimentManager
 
 TrainingEnvs = Callable[..., Any]
-"""A factory with ``make_vec_env``'s arguments after the env id: ``(env_id, env_fn, n_envs, seed, env_kwargs,
-monitor_dir, wrapper_class, vec_env_cls, vec_env_kwargs, monitor_kwargs)`` -> VecEnv."""
+"""A factory of an rl-zoo3 run's training envs: ``(env_id, *, n_envs, seed, env_kwargs, monitor_dir, wrapper_class,
+monitor_kwargs)`` -> VecEnv, the arguments as rl-zoo3 would give ``make_vec_env`` (``wrapper_class``: the YAML's
+``env_wrapper``; ``monitor_dir``: None where rl-zoo3 logs no episodes)."""
 
 
 class TRPOPlusExperimentManager(ExperimentManager):
@@ -74,7 +75,7 @@ class TRPOPlusExperimentManager(ExperimentManager):
 
         def build(env_fns: Sequence[Callable[[], Any]], **_: Any) -> Any:
             return factory(
-                self.env_name.gym_id, None, n_envs=len(env_fns), seed=self.seed, env_kwargs=self.env_kwargs,
+                self.env_name.gym_id, n_envs=len(env_fns), seed=self.seed, env_kwargs=self.env_kwargs,
                 monitor_dir=None if no_log else self.save_path, wrapper_class=self.env_wrapper,
                 monitor_kwargs=self.monitor_kwargs,
             )  # fmt: skip

@@ -325,19 +325,16 @@ def _scripted_starts_of(wrapper_class: Any, flag: str) -> dict[str, Any] | None:
 
 def batch_training_env(
     env_id: str,
-    env_fn: Any,
+    *,
     n_envs: int = 1,
     seed: int | None = None,
     env_kwargs: dict[str, Any] | None = None,
     monitor_dir: str | None = None,
     wrapper_class: Any = None,
-    vec_env_cls: Any = None,
-    vec_env_kwargs: dict[str, Any] | None = None,
     monitor_kwargs: dict[str, Any] | None = None,
-    *,
     n_threads: int = 1,
 ) -> Any:
-    """``make_vec_env``'s signature, answered by the batched engine (``grasp_envs.make_batch_env``) for ``env_id``.
+    """The training envs of an rl-zoo3 run (:data:`sb3_trpo_plus.experiment.TrainingEnvs`) on the batched engine.
 
     ``wrapper_class`` is rl-zoo3's ``env_wrapper``: only ``grasp_envs.wrappers.ScriptedStarts`` can be run batched,
     any other raises ``TypeError`` naming it.
@@ -359,21 +356,19 @@ WORKER_BACKENDS = ("inprocess", "process", "ray")
 
 def workers_training_env(
     env_id: str,
-    env_fn: Any,
+    *,
     n_envs: int = 1,
     seed: int | None = None,
     env_kwargs: dict[str, Any] | None = None,
     monitor_dir: str | None = None,
     wrapper_class: Any = None,
-    vec_env_cls: Any = None,
-    vec_env_kwargs: dict[str, Any] | None = None,
     monitor_kwargs: dict[str, Any] | None = None,
-    *,
     backend: str,
     num_workers: int,
     n_threads: int = 1,
 ) -> Any:
-    """``make_vec_env``'s signature, answered by a pool of rollout workers (``sb3_trpo_plus.rollouts``): the recipe's
+    """The training envs of an rl-zoo3 run (:data:`sb3_trpo_plus.experiment.TrainingEnvs`) as a pool of rollout workers
+    (``sb3_trpo_plus.rollouts``): the recipe's
     ``n_envs`` split evenly over ``num_workers`` workers of ``backend`` (``inprocess``, ``process`` or ``ray``), the
     same seeds (env ``i``: ``seed + i``), ``env_kwargs`` and scripted starts; episodes in ``<run>/workers.monitor.csv``.
     """

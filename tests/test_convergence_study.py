@@ -796,13 +796,15 @@ def test_the_report_writes_the_tables_page_whole_and_only_the_block_of_the_resul
     assert "![Reacher2D-v0 learning curves](images/results_Reacher2D-v0.png)" in tables
     assert "## Reacher3D-v0\n\nNo finished runs yet (budget 1,000,000 steps)." in tables
     assert "## Aggregate (rliable)\n\n(aggregates)\n" in tables
+    assert "## Generalized sample reuse\n\n(aggregates)\n" in tables
     assert (docs / "images" / "results_Reacher2D-v0.png").exists()
     assert findings.read_text() == (
         f"# Results\n\nA finding.\n\n{report.BEGIN}\n| env | budget (env steps) | seeds |\n|---|---|---|\n"
         "| [Reacher2D-v0](results-tables.md#reacher2d-v0) | 300,000 | 3 |\n"
         "| [Reacher3D-v0](results-tables.md#reacher3d-v0) | 1,000,000 | no run to the budget yet |\n\n"
         "rliable aggregates: [over the envs with 5 finished seeds of every variant]"
-        "(results-tables.md#aggregate-rliable).\n\n"
+        "(results-tables.md#aggregate-rliable); [generalized sample reuse against plain TRPOPlus, TRPO and PPO]"
+        "(results-tables.md#generalized-sample-reuse).\n\n"
         f"{report.END}\n\nAfter.\n"
     )
 
