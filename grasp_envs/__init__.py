@@ -1,9 +1,9 @@
 """The thesis' MuJoCo arm tasks as Gymnasium environments, registered on import.
 
 ``gymnasium.make("Grasper3D-v7")`` after ``import grasp_envs`` (or ``import sb3_trpo_plus``), or
-``gymnasium.make("grasp_envs:Grasper3D-v7")`` anywhere. One class per task; each id is a preset of its options
-(``grasp_envs.registration.PRESETS``). Importing also asks multiprocessing's forkserver to preload this package, so
-``SubprocVecEnv`` workers know the ids too.
+``gymnasium.make("grasp_envs:Grasper3D-v7")`` anywhere. One class per task, its options one frozen dataclass
+(``Grasper3DOptions``, ...); each id is a preset of its options (``grasp_envs.registration.PRESETS``). Importing
+also asks multiprocessing's forkserver to preload this package, so ``SubprocVecEnv`` workers know the ids too.
 """
 
 from __future__ import annotations
@@ -12,12 +12,12 @@ import multiprocessing
 import multiprocessing.forkserver
 from typing import TYPE_CHECKING, Any
 
-from grasp_envs.grasper3d import Grasper3DEnv
-from grasp_envs.reacher2d import Reacher2DEnv
-from grasp_envs.reacher3d import Reacher3DEnv
+from grasp_envs.grasper3d import Grasper3DEnv, Grasper3DOptions
+from grasp_envs.reacher2d import Reacher2DEnv, Reacher2DOptions
+from grasp_envs.reacher3d import Reacher3DEnv, Reacher3DOptions
 from grasp_envs.registration import ENV_IDS, PRESETS, RECOMMENDED_GRASPER, register_presets
-from grasp_envs.wall_reacher3d import WallReacher3DEnv
-from grasp_envs.wrappers import ScriptedStarts
+from grasp_envs.wall_reacher3d import WallReacher3DEnv, WallReacher3DOptions
+from grasp_envs.wrappers import ScriptedStartOptions, ScriptedStarts
 
 __all__ = [
     "ENV_IDS",
@@ -25,10 +25,15 @@ __all__ = [
     "RECOMMENDED_GRASPER",
     "BatchVecEnv",
     "Grasper3DEnv",
+    "Grasper3DOptions",
     "Reacher2DEnv",
+    "Reacher2DOptions",
     "Reacher3DEnv",
+    "Reacher3DOptions",
+    "ScriptedStartOptions",
     "ScriptedStarts",
     "WallReacher3DEnv",
+    "WallReacher3DOptions",
     "has_batch_engine",
     "make_batch_env",
 ]

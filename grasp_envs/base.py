@@ -2,15 +2,19 @@
 
 A task (``ArmTask``) computes controls, observations, rewards, success, termination and reset states for ``n``
 simulations at once from ``SimArrays``: views with a leading simulation axis, either of one ``MjData`` (the Gymnasium
-env, a batch of one) or of a ``mujoco.batch.Batch`` (``grasp_envs.make_batch_env``). ``ArmEnv`` is the Gymnasium face
-of a task; ``grasp_envs.batch.BatchVecEnv`` its SB3 VecEnv face.
+env, a batch of one) or of a ``mujoco.batch.Batch`` (``grasp_envs.make_batch_env``). Its options are one frozen
+dataclass (a ``TaskOptions``). ``Physics`` runs a task's step on ``n`` simulations, whichever holds them
+(``DataPhysics``: one ``MjData``; ``grasp_envs.batch.BatchPhysics``: a batch). ``ArmEnv`` is the Gymnasium face of a
+task; ``grasp_envs.batch.BatchVecEnv`` its SB3 VecEnv face.
 """
 
 from __future__ import annotations
 
-import os
+import inspect
+from collections.abc import Sequence
+from dataclasses import fields
 from os import path
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import mujoco
 import numpy as np
@@ -18,6 +22,8 @@ from gymnasium import utils
 from gymnasium.envs.mujoco import MujocoEnv
 from gymnasium.spaces import Box
 from numpy.typing import NDArray
+
+from grasp_envs.options import Options
 
 ASSETS = path.join(path.dirname(__file__), "assets")
 
@@ -43,7 +49,13 @@ SIM_FIELDS = (
     "qfrc_bias", "cdof", "subtree_com",
 )  # fmt: skip
 
+# Gymnasium MujocoEnv's arguments that only concern rendering: every env takes them besides its task's options
+RENDER_ARGUMENTS = (
+    "render_mode", "width", "height", "camera_id", "camera_name", "default_camera_config", "max_geom", "visual_options",
+)  # fmt: skip
+
 Array = NDArray[np.float64]
+Start = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]  # qpos, qvel, mocap_pos (or None)
 
 
 class SimArrays:
@@ -111,28 +123,6 @@ def norm(vectors: Array) -> Array:
     return np.sqrt((vectors[..., None, :] @ vectors[..., :, None])[..., 0, 0])
 
 
-def check_near_bonus(weight: float, scale: float) -> None:
-    check_amount("near_scale", scale, "positive number")
-    check_amount("reward_near_weight", weight)
-
-
-def check_amount(name: str, value: Any, kind: str = "non-negative number") -> None:
-    """Raise ``ValueError`` naming the option and the value unless it is a finite real number (a bool is not one) that
-    is > 0 (``kind="positive number"``) or >= 0 (``"non-negative number"``); ``None`` passes where ``kind`` ends in
-    ``" or None"``."""
-    if value is None and kind.endswith(" or None"):
-        return
-    number = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
-    positive = kind.startswith("positive")
-    if not (number and np.isfinite(value) and (value > 0 or (value == 0 and not positive))):
-        raise ValueError(f"{name} must be a {kind}, got {value!r}")
-
-
-def check_frame_skip(frame_skip: Any) -> None:
-    if isinstance(frame_skip, bool) or not isinstance(frame_skip, int | np.integer) or frame_skip < 1:
-        raise ValueError(f"frame_skip must be an integer >= 1, got {frame_skip!r}")
-
-
 def asset_path(xml_file: str) -> str:
     """Absolute path of a model: an existing path is used as given, a bare name is looked up in our assets."""
     if path.isabs(xml_file) or path.exists(xml_file):
@@ -140,9 +130,22 @@ def asset_path(xml_file: str) -> str:
     return path.join(ASSETS, xml_file)
 
 
+class TaskOptions(Options):
+    """Base of each task's options dataclass (``@dataclass(frozen=True)``, every field made by ``option``).
+
+    Every task has the options ``xml_file`` (its MuJoCo model) and ``frame_skip`` (physics steps per action); each
+    dataclass defines them as fields, with its own defaults, and they are declared here for the code that reads them.
+    """
+
+    xml_file: str | None
+    frame_skip: int
+
+
 class ArmTask:
     """One arm task over ``n`` simulations: everything but the physics stepping, batch-first.
 
+    Made from the task's options (``options``, a ``TaskOptions`` dataclass, checked when it was made); the options
+    also read as the task's attributes (``task.reset_noise_scale``), as a VecEnv's ``get_attr`` asks for them.
     Subclasses set ``observation_dim`` and ``contact_pairs`` (geom name pairs whose contacts the task counts, read
     through MuJoCo contact sensors added to the model), and implement ``observe``, ``reward`` (``(reward, info)``
     with ``info`` arrays, one ``reward_<term>`` per term), ``success`` and ``sample_start``. Per-simulation task
@@ -150,15 +153,32 @@ class ArmTask:
     """
 
     contact_pairs: ClassVar[tuple[tuple[str, str], ...]] = ()
+    observation_dim: int
+    options: TaskOptions
 
-    def __init__(self, xml_file: str, frame_skip: int, observation_dim: int):
-        if not isinstance(xml_file, str | os.PathLike):
-            raise ValueError(f"xml_file must be a path (str), got {xml_file!r}")
-        check_frame_skip(frame_skip)
-        self.xml_file = xml_file
-        self.frame_skip = int(frame_skip)
-        self.observation_dim = observation_dim
+    def __init__(self, options: TaskOptions):
+        self.options = options
         self.n = 0
+
+    if not TYPE_CHECKING:  # at run time only, so that the type checker still checks the tasks' own attributes
+
+        def __getattr__(self, name: str) -> Any:
+            options = self.__dict__.get("options")
+            if options is None or name not in options.names():
+                raise AttributeError(f"{type(self).__name__} has no attribute {name!r}")
+            return getattr(options, name)
+
+    @property
+    def xml_file(self) -> str:
+        """The model's XML file: the ``xml_file`` option."""
+        xml_file = self.options.xml_file
+        assert xml_file is not None, f"{type(self).__name__} must choose its model where xml_file is None"
+        return xml_file
+
+    @property
+    def frame_skip(self) -> int:
+        """Physics steps per action: the ``frame_skip`` option."""
+        return int(self.options.frame_skip)
 
     # ------------------------------------------------------------------ the model
     def build_model(self) -> mujoco.MjModel:
@@ -261,7 +281,7 @@ class ArmTask:
         return np.zeros(sim.n, dtype=bool)
 
     # ------------------------------------------------------------------ the reset
-    def sample_start(self, rng: np.random.Generator) -> tuple[Array, Array, Array | None]:  # pragma: no cover
+    def sample_start(self, rng: np.random.Generator) -> Start:  # pragma: no cover
         """One simulation's start state drawn with its generator: ``qpos``, ``qvel`` and the mocap positions (or
         ``None`` to keep the model's)."""
         raise NotImplementedError
@@ -284,32 +304,142 @@ def infos_of(info: dict[str, NDArray[Any]], n: int) -> list[dict[str, Any]]:
     return [{key: column[i] for key, column in columns.items()} for i in range(n)]
 
 
+class Physics:
+    """The physics of ``n`` simulations of one task, and the task's step on them, written once for every face.
+
+    ``step`` is the sequence of an env step: the task's controls of the actions, ``frame_skip`` physics steps,
+    MuJoCo's instability check, the task's transition. ``simulate`` is that step without the transition, for any
+    subset of the simulations (the scripted starts step some while others wait); ``start`` draws and writes start
+    states. Where the simulations live is a subclass's: ``DataPhysics`` one ``MjData`` (the Gymnasium env),
+    ``grasp_envs.batch.BatchPhysics`` a ``mujoco.batch.Batch`` (the batched VecEnv). ``sim`` views their state.
+    """
+
+    sim: SimArrays
+
+    def __init__(self, task: ArmTask, model: mujoco.MjModel, n: int):
+        self.task = task
+        self.model = model
+        self.n = n
+        self.action_space = task.action_space(model)
+        task.setup(model, n)
+
+    # ------------------------------------------------------------------ where the simulations live
+    def _run(self, ids: NDArray[np.int64] | None) -> None:  # pragma: no cover - abstract
+        """Step the simulations ``ids`` (all: ``None``) ``frame_skip`` times with the controls in ``sim.ctrl``."""
+        raise NotImplementedError
+
+    def _restore(self, ids: NDArray[np.int64]) -> None:  # pragma: no cover - abstract
+        """Put the simulations ``ids`` back into the model's default state (forwarded)."""
+        raise NotImplementedError
+
+    def _settle(self, ids: NDArray[np.int64] | None) -> None:
+        """After a physics call on ``ids`` (all: ``None``): make ``sim`` show its results, where it needs to."""
+
+    def _write_starts(self, ids: NDArray[np.int64], starts: Sequence[Start]) -> None:  # pragma: no cover - abstract
+        """Write the start states of ``ids`` (one each) and forward them."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ the step
+    def simulate(
+        self, actions: Array, ids: NDArray[np.int64] | None = None, sim: SimArrays | None = None
+    ) -> NDArray[np.bool_]:
+        """Step the simulations ``ids`` (all: ``None``) with the task's controls of ``actions`` (checked, clipped,
+        one row each); return which became unstable (MuJoCo resets a simulation and counts a warning when its
+        positions, velocities, accelerations or controls become non-finite or huge), each put back into its default
+        state. ``sim``: the arrays of ``ids`` the controls are computed from, where the caller holds them already
+        (``SimArrays.take``)."""
+        rows = slice(None) if ids is None else ids
+        view = self.sim if ids is None else (sim if sim is not None else self.sim.take(ids))
+        ctrl = self.task.controls(view, actions, ids)
+        before = self.sim.instability_warnings()[rows].copy()
+        self.sim.ctrl[rows] = ctrl
+        self._run(ids)
+        unstable = (self.sim.instability_warnings()[rows] > before) | ~np.isfinite(self.sim.qvel[rows]).all(axis=1)
+        diverged = (np.arange(self.n) if ids is None else ids)[unstable]
+        if len(diverged):
+            self._restore(diverged)
+        self._settle(ids)
+        return unstable
+
+    def step(self, actions: Array) -> tuple[Array, Array, NDArray[np.bool_], dict[str, NDArray[Any]]]:
+        """Every simulation's step with ``actions`` (checked, clipped): observation, reward, termination and info
+        arrays (``ArmTask.transition``)."""
+        unstable = self.simulate(actions)
+        return self.task.transition(self.sim, actions, unstable)
+
+    # ------------------------------------------------------------------ the reset
+    def start(self, ids: NDArray[np.int64], rngs: Sequence[np.random.Generator]) -> None:
+        """Draw the start states of the simulations ``ids``, each with its own generator, and start them there."""
+        starts = [self.task.sample_start(rng) for rng in rngs]
+        self._write_starts(ids, starts)
+        self.task.started(self.sim, ids)
+
+
+class DataPhysics(Physics):
+    """One simulation in one ``MjData``: a batch of one. Its start states are written into a reset ``MjData`` (the
+    Gymnasium env's reset resets it first; an unstable step leaves it reset)."""
+
+    def __init__(self, task: ArmTask, model: mujoco.MjModel, data: mujoco.MjData):
+        super().__init__(task, model, 1)
+        self.data = data
+        self.sim = SimArrays.of_data(model, data)
+
+    def _run(self, ids: NDArray[np.int64] | None) -> None:
+        mujoco.mj_step(self.model, self.data, nstep=self.task.frame_skip)
+
+    def _restore(self, ids: NDArray[np.int64]) -> None:
+        mujoco.mj_resetData(self.model, self.data)
+        mujoco.mj_forward(self.model, self.data)
+
+    def _write_starts(self, ids: NDArray[np.int64], starts: Sequence[Start]) -> None:
+        [(qpos, qvel, mocap_pos)] = starts
+        if mocap_pos is not None:
+            self.data.mocap_pos[:] = mocap_pos
+        self.data.qpos[:] = qpos
+        self.data.qvel[:] = qvel
+        mujoco.mj_forward(self.model, self.data)
+
+
 class ArmEnv(MujocoEnv, utils.EzPickle):
     """The Gymnasium face of an ``ArmTask``: one simulation, a batch of one (not registered itself).
 
-    ``step`` validates and clips the action, simulates ``frame_skip`` physics steps, and ends the episode with
-    ``info["unstable"] = True`` if MuJoCo had to reset a diverging simulation.
+    A task's env class names its options (``options_class``, a ``TaskOptions`` dataclass), its task (``task_class``)
+    and the camera of ``render()`` (``default_camera``). Its constructor takes the options and Gymnasium's rendering
+    arguments (``RENDER_ARGUMENTS``) as keywords, and refuses any other with ``TypeError``; its signature lists the
+    options with their defaults (made from the dataclass). ``step`` validates and clips the action and runs the
+    task's step (``Physics.step``), which ends the episode with ``info["unstable"] = True`` if MuJoCo had to reset a
+    diverging simulation.
     """
 
     metadata: dict[str, Any] = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"]}
+    options_class: ClassVar[type[TaskOptions]]
+    task_class: ClassVar[type[ArmTask]]
+    default_camera: ClassVar[dict[str, Any] | None] = None
+    __signature__: ClassVar[inspect.Signature]
     action_space: Box  # every arm task has continuous actions
     task: ArmTask
 
-    def __init__(self, task: ArmTask, default_camera_config: dict[str, Any] | None, **kwargs: Any):
-        self.task = task
+    def __init_subclass__(cls, **kwargs: Any):
+        super().__init_subclass__(**kwargs)
+        if "options_class" in vars(cls):
+            cls.__signature__ = constructor_signature(cls.options_class, cls.default_camera)
+
+    def __init__(self, **kwargs: Any):
+        options, rendering = self.options_class.from_keywords(kwargs, type(self).__name__, RENDER_ARGUMENTS)
+        rendering.setdefault("default_camera_config", self.default_camera)
+        utils.EzPickle.__init__(self, **options.keywords(), **rendering)
+        self.task = task = self.task_class(options)
         observation_space = Box(low=-np.inf, high=np.inf, shape=(task.observation_dim,), dtype=np.float64)
-        MujocoEnv.__init__(
-            self,
-            asset_path(task.xml_file),
-            task.frame_skip,
-            observation_space=observation_space,
-            default_camera_config=default_camera_config,
-            **kwargs,
-        )
+        MujocoEnv.__init__(self, asset_path(task.xml_file), task.frame_skip, observation_space=observation_space, **rendering)
         self.metadata = {**ArmEnv.metadata, "render_fps": int(np.round(1.0 / self.dt))}
-        task.setup(self.model, 1)
+        self.physics = DataPhysics(task, self.model, self.data)
         self.init_qpos, self.init_qvel = task.init_qpos, task.init_qvel
-        self.sim = SimArrays.of_data(self.model, self.data)
+        self.sim = self.physics.sim
+
+    @property
+    def options(self) -> TaskOptions:
+        """The task's options."""
+        return self.task.options
 
     def _initialize_simulation(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
         model = self.task.build_model()
@@ -332,24 +462,8 @@ class ArmEnv(MujocoEnv, utils.EzPickle):
             raise ValueError(f"{type(self).__name__}.step got a non-finite action: {action}")
         return np.clip(action, self.action_space.low, self.action_space.high)
 
-    def _simulate(self, action: Array) -> bool:
-        """Run ``frame_skip`` physics steps with the controls of ``action``; return whether the simulation became
-        unstable (MuJoCo resets ``mjData`` and counts a warning when positions, velocities, accelerations or
-        controls become non-finite or huge). An unstable simulation is put back into its default state."""
-        ctrl = self.task.controls(self.sim, action[None])
-        warnings_before = int(self.sim.instability_warnings()[0])
-        self.data.ctrl[:] = ctrl[0]
-        mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
-        unstable = int(self.sim.instability_warnings()[0]) > warnings_before or not np.isfinite(self.data.qvel).all()
-        if unstable:
-            mujoco.mj_resetData(self.model, self.data)
-            mujoco.mj_forward(self.model, self.data)
-        return unstable
-
     def step(self, action: Any) -> tuple[Array, float, bool, bool, dict[str, Any]]:  # type: ignore[override]
-        action = self._checked_action(action)
-        unstable = self._simulate(action)
-        observation, reward, terminated, info = self.task.transition(self.sim, action[None], np.array([unstable]))
+        observation, reward, terminated, info = self.physics.step(self._checked_action(action)[None])
         if self.render_mode == "human":
             self.render()
         # truncation is left to the TimeLimit wrapper added by `gymnasium.make`
@@ -357,12 +471,8 @@ class ArmEnv(MujocoEnv, utils.EzPickle):
 
     # ------------------------------------------------------------------ reset
     def reset_model(self) -> Array:
-        qpos, qvel, mocap_pos = self.task.sample_start(self.np_random)
-        if mocap_pos is not None:
-            self.data.mocap_pos[:] = mocap_pos
-        self.set_state(qpos, qvel)
-        self.task.started(self.sim, np.zeros(1, dtype=np.int64))
-        return self.task.observe(self.sim)[0]
+        self.physics.start(np.zeros(1, dtype=np.int64), [self.np_random])
+        return self._get_obs()
 
     def _get_obs(self) -> Array:
         return self.task.observe(self.sim)[0]
@@ -379,3 +489,15 @@ class ArmEnv(MujocoEnv, utils.EzPickle):
 
     def site_pos(self, name: str) -> Array:
         return self.data.site(name).xpos
+
+
+def constructor_signature(options_class: type[TaskOptions], default_camera: dict[str, Any] | None) -> inspect.Signature:
+    """An env class's constructor signature: its task's options with their defaults, ``default_camera_config`` and
+    the other rendering arguments (``**kwargs``), all keywords."""
+    keyword = inspect.Parameter.KEYWORD_ONLY
+    parameters = [
+        inspect.Parameter(spec.name, keyword, default=spec.default, annotation=spec.type) for spec in fields(options_class)
+    ]
+    parameters.append(inspect.Parameter("default_camera_config", keyword, default=default_camera, annotation="dict[str, Any]"))
+    parameters.append(inspect.Parameter("kwargs", inspect.Parameter.VAR_KEYWORD, annotation="Any"))
+    return inspect.Signature(parameters)

@@ -3,16 +3,18 @@
 ``make_batch_env("Grasper3D-v7", n_envs=64, seed=0, n_threads=2)`` steps 64 simulations of the task's model on a
 thread pool (MuJoCo's GIL-free batch, bit-identical to a loop of ``mj_step``) and computes actions' controls,
 observations, rewards, success, termination and resets for all of them at once, with the task's one batch-first
-definition (``grasp_envs.base.ArmTask``) that the Gymnasium env runs as a batch of one. Its transitions equal SB3's
-``DummyVecEnv`` over ``gymnasium.make(env_id)`` with the same seeds and actions (tested to 1e-9 for every id).
+definition (``grasp_envs.base.ArmTask``) and the one step sequence (``grasp_envs.base.Physics``, here over a
+``BatchPhysics``) that the Gymnasium env runs as a batch of one; its scripted starts are the wrapper's
+(``grasp_envs.wrappers.scripted_starts``). Its transitions equal SB3's ``DummyVecEnv`` over ``gymnasium.make(env_id)``
+with the same seeds and actions (tested to 1e-9 for every id).
 """
 
 from __future__ import annotations
 
-import inspect
+import dataclasses
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -27,58 +29,95 @@ from stable_baselines3.common.monitor import Monitor, ResultsWriter
 from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
-from grasp_envs.base import SIM_FIELDS, ArmEnv, ArmTask, SimArrays, info_of, infos_of
+from grasp_envs.base import RENDER_ARGUMENTS, SIM_FIELDS, ArmEnv, ArmTask, Physics, SimArrays, Start, info_of, infos_of
+from grasp_envs.grasper3d import Grasper3DTask
+from grasp_envs.options import Rule, check_arguments, flag, integer, is_keywords, is_names
 from grasp_envs.proximity import ContactScreen
+from grasp_envs.wrappers import ScriptedStartOptions, ScriptedStarts, scripted_starts
 
 # MjData fields that are state (bound as live views); the others are derived, refreshed by each batch call
 _STATE_FIELDS = ("qpos", "qvel", "ctrl", "mocap_pos")
-# Gymnasium MujocoEnv arguments that only concern rendering
-_RENDER_ARGUMENTS = ("render_mode", "width", "height", "camera_id", "camera_name", "max_geom", "visual_options")
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, int | np.integer) and not isinstance(value, bool)
-
-
-def _is_keywords(value: Any) -> bool:
-    return isinstance(value, dict) and all(isinstance(key, str) for key in value)
-
-
-def _is_scripted_starts_class(value: Any) -> bool:
-    from grasp_envs.wrappers import ScriptedStarts
-
-    return value is None or value is ScriptedStarts
-
 
 # What each argument of BatchVecEnv and make_batch_env accepts, and that requirement in words. Booleans are bool only,
 # integers never bool or float, info keys a list or tuple of str (one str would be a sequence of characters).
-_ARGUMENT_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "env_id": (lambda value: isinstance(value, str), "a registered id of grasp_envs (str)"),
-    "n_envs": (lambda value: _is_int(value) and value >= 1, "an integer >= 1"),
-    "n_threads": (lambda value: _is_int(value) and value >= 0, "an integer >= 0"),
-    "seed": (lambda value: value is None or (_is_int(value) and value >= 0), "None or an integer >= 0"),
-    "scripted_starts": (lambda value: value is None or _is_keywords(value), "None or a dict of ScriptedStarts' arguments"),
-    "wrapper_class": (
-        _is_scripted_starts_class,
+ARGUMENT_RULES: dict[str, Rule] = {
+    "env_id": Rule(lambda value: isinstance(value, str), "a registered id of grasp_envs (str)"),
+    "n_envs": integer(1),
+    "n_threads": integer(0),
+    "seed": integer(0, optional=True),
+    "scripted_starts": Rule(lambda value: value is None or is_keywords(value), "None or a dict of ScriptedStarts' arguments"),
+    "wrapper_class": Rule(
+        lambda value: value is None or value is ScriptedStarts,
         "None or grasp_envs.wrappers.ScriptedStarts (the batched engine runs no per-env Gymnasium wrappers; "
         "wrap the VecEnv with VecEnv wrappers instead)",
     ),
-    "wrapper_kwargs": (lambda value: value is None or _is_keywords(value), "None or a dict of the wrapper's arguments"),
-    "monitor": (lambda value: isinstance(value, bool), "a bool (True or False)"),
-    "monitor_file": (lambda value: value is None or isinstance(value, str | os.PathLike), "None or a file path"),
-    "info_keywords": (
-        lambda value: isinstance(value, list | tuple) and all(isinstance(key, str) for key in value),
-        "a list or tuple of str (not one str)",
-    ),
+    "wrapper_kwargs": Rule(lambda value: value is None or is_keywords(value), "None or a dict of the wrapper's arguments"),
+    "monitor": flag(),
+    "monitor_file": Rule(lambda value: value is None or isinstance(value, str | os.PathLike), "None or a file path"),
+    "info_keywords": Rule(is_names, "a list or tuple of str (not one str)"),
 }
 
 
-def _check_arguments(**arguments: Any) -> None:
-    """Raise ``ValueError`` naming the first argument that breaks its rule in ``_ARGUMENT_RULES``, and its value."""
-    for name, value in arguments.items():
-        accepts, requirement = _ARGUMENT_RULES[name]
-        if not accepts(value):
-            raise ValueError(f"{name} must be {requirement}, got {value!r}")
+class BatchPhysics(Physics):
+    """``n`` simulations of a task's model in one ``mujoco.batch.Batch``, stepped on ``n_threads`` threads.
+
+    ``sim`` binds the batch's state fields (live views) and keeps its derived fields and contact counts as ``MjData``
+    shows them after ``mj_step`` (a snapshot refreshed after each call on the simulations it stepped: the batch's own
+    are refreshed by every call). The contact list has no batched binding: each simulation's is read from its
+    ``MjData``, for the tasks that count contacts, only where ``ContactScreen`` finds that a counted pair may touch.
+    """
+
+    def __init__(self, task: ArmTask, n: int, n_threads: int):
+        model = task.build_model()
+        super().__init__(task, model, n)
+        self.batch = mujoco.batch.Batch(model, n, n_threads, persistent=True)
+        self._state = {name: self.batch.bind(name) for name in _STATE_FIELDS}
+        self._derived = {name: self.batch.bind(name) for name in SIM_FIELDS if name not in _STATE_FIELDS}
+        self._snapshot = {name: array.copy() for name, array in self._derived.items()}
+        self._contacts = np.zeros((n, len(task.contact_pairs)))
+        self._contact_data = mujoco.MjData(model)
+        self._screen = ContactScreen(model, [(task.geom_id(a), task.geom_id(b)) for a, b in task.contact_pairs])
+        self.sim = SimArrays(model, {**self._state, **self._snapshot}, self.batch.warning[..., 1], contacts=self._contacts)
+
+    def _run(self, ids: NDArray[np.int64] | None) -> None:
+        self.batch.step(ids, nstep=self.task.frame_skip)
+
+    def _restore(self, ids: NDArray[np.int64]) -> None:
+        self.batch.reset(ids)
+
+    def _settle(self, ids: NDArray[np.int64] | None) -> None:
+        """Keep the derived fields and the contacts of ``ids`` (all: ``None``) as MjData shows them now."""
+        for name, array in self._derived.items():
+            if ids is None:
+                np.copyto(self._snapshot[name], array)
+            else:
+                self._snapshot[name][ids] = array[ids]
+        if self.task.contact_pairs:  # the contact list has no batched binding: read each simulation's MjData
+            xpos, xmat = self._snapshot["geom_xpos"], self._snapshot["geom_xmat"]
+            if ids is None:  # every simulation: the snapshot as it is, no row copies
+                rows = np.arange(self.n)
+            else:
+                rows = np.asarray(ids)
+                xpos, xmat = xpos[rows], xmat[rows]
+            self._contacts[rows] = 0.0
+            # only where a counted pair may touch: the others' lists hold no counted contact
+            rows = rows[self._screen.may_touch(xpos, xmat)]
+            if len(rows):
+                data, geoms = self._contact_data, []
+                for i in rows:
+                    self.batch.get_data(int(i), data)
+                    geoms.append(data.contact.geom[: data.ncon].copy())
+                self._contacts[rows] = self.task.count_contact_lists(geoms)
+
+    def _write_starts(self, ids: NDArray[np.int64], starts: Sequence[Start]) -> None:
+        self.batch.reset(ids, stage=mujoco.mjtStage.mjSTAGE_NONE)
+        for i, (qpos, qvel, mocap_pos) in zip(ids, starts, strict=True):
+            self._state["qpos"][i] = qpos
+            self._state["qvel"][i] = qvel
+            if mocap_pos is not None:
+                self._state["mocap_pos"][i] = mocap_pos
+        self.batch.forward(ids)
+        self._settle(ids)
 
 
 class BatchVecEnv(VecEnv):
@@ -99,7 +138,8 @@ class BatchVecEnv(VecEnv):
     between a training and an evaluation env needs that) and ``env_is_wrapped(Monitor)`` is true.
 
     Every argument is checked before the simulations are built: a value of the wrong type or out of range raises
-    ``ValueError`` naming the argument and the value (the task's options are checked by the task).
+    ``ValueError`` naming the argument and the value (``ARGUMENT_RULES``; the task's options by its options
+    dataclass, the scripted starts' by ``ScriptedStartOptions``), and an unknown option ``TypeError`` naming it.
 
     :param env_id: a registered id of ``grasp_envs`` (``grasp_envs.ENV_IDS``)
     :param n_envs: number of simulations
@@ -108,33 +148,29 @@ class BatchVecEnv(VecEnv):
     :param monitor: record episodes as ``Monitor`` does
     :param monitor_file: ``None``, or the CSV (``.monitor.csv`` is appended) the episodes are written to
     :param info_keywords: info keys recorded with each episode
-    :param options: the id's options to override (the task's keyword arguments), and Gymnasium's rendering
-        arguments (``render_mode``, ``width``, ``height``, ``camera_id``, ``camera_name``, ``default_camera_config``)
+    :param options: the id's options to override (the fields of the task's options dataclass, e.g.
+        ``Grasper3DOptions``), and Gymnasium's rendering arguments (``render_mode``, ``width``, ``height``,
+        ``camera_id``, ``camera_name``, ``default_camera_config``)
     """
 
     action_space: Box
     observation_space: Box
+    env_id: str
+    spec: Any  # gymnasium's EnvSpec
+    task: ArmTask
+    physics: BatchPhysics
     batch: Any  # mujoco.batch.Batch
     model: mujoco.MjModel
-    task: ArmTask
     sim: SimArrays
-    spec: Any
-    env_id: str
     max_episode_steps: int | None
-    _state: dict[str, NDArray[np.float64]]
-    _derived: dict[str, NDArray[np.float64]]
-    _snapshot: dict[str, NDArray[np.float64]]
-    _contacts: NDArray[np.float64]
-    _contact_data: mujoco.MjData
-    _scripted: dict[str, Any] | None
-    _episode_steps: NDArray[np.int64]
-    _observations: NDArray[np.float64]
+    _scripted: ScriptedStartOptions | None
     _render_kwargs: dict[str, Any]
     _monitor: bool
     _info_keywords: tuple[str, ...]
+    _episode_steps: NDArray[np.int64]
     _episode_returns: NDArray[np.float64]
+    _observations: NDArray[np.float64]
     _t_start: float
-    _results_writer: ResultsWriter | None
 
     def __init__(
         self,
@@ -147,61 +183,39 @@ class BatchVecEnv(VecEnv):
         info_keywords: Sequence[str] = (),
         **options: Any,
     ):
-        _check_arguments(
-            env_id=env_id, n_envs=n_envs, n_threads=n_threads, scripted_starts=scripted_starts, monitor=monitor,
-            monitor_file=monitor_file, info_keywords=info_keywords,
-        )  # fmt: skip
+        check_arguments(ARGUMENT_RULES, {
+            "env_id": env_id, "n_envs": n_envs, "n_threads": n_threads, "scripted_starts": scripted_starts,
+            "monitor": monitor, "monitor_file": monitor_file, "info_keywords": info_keywords,
+        })  # fmt: skip
         n_envs, n_threads = int(n_envs), int(n_threads)
         spec = gym.spec(env_id)
         env_class = load_env_creator(spec.entry_point) if isinstance(spec.entry_point, str) else spec.entry_point
         if not (isinstance(env_class, type) and issubclass(env_class, ArmEnv)):
             raise ValueError(f"make_batch_env runs the tasks of grasp_envs (grasp_envs.ENV_IDS), got {env_id!r}")
-        kwargs = {**spec.kwargs, **options}
-        env_parameters = inspect.signature(env_class).parameters
-        task_arguments = set(inspect.signature(env_class.task_class).parameters) - {"self"}
-        unknown = sorted(set(kwargs) - set(env_parameters) - set(_RENDER_ARGUMENTS))
-        if unknown:
-            raise TypeError(f"{env_id} has no option {', '.join(map(repr, unknown))}")
-        # the options' defaults are the Gymnasium env class's: one place for each
-        defaults = {name: p.default for name, p in env_parameters.items() if p.default is not inspect.Parameter.empty}
-        kwargs = {**{k: v for k, v in defaults.items() if k in task_arguments}, **kwargs}
+        task_options, rendering = env_class.options_class.from_keywords({**spec.kwargs, **options}, env_id, RENDER_ARGUMENTS)
+        rendering.setdefault("default_camera_config", env_class.default_camera)
         self.env_id = env_id
         self.spec = spec
-        self.task = env_class.task_class(**{k: v for k, v in kwargs.items() if k in task_arguments})
-        self._render_kwargs = {k: v for k, v in kwargs.items() if k not in task_arguments}
-        if "default_camera_config" in defaults and "default_camera_config" not in self._render_kwargs:
-            self._render_kwargs["default_camera_config"] = defaults["default_camera_config"]
-        self.render_mode: str | None = self._render_kwargs.get("render_mode")
+        self.task = task = env_class.task_class(task_options)
+        self._render_kwargs = rendering
+        self.render_mode: str | None = rendering.get("render_mode")
         self.max_episode_steps = spec.max_episode_steps
-        model = self.task.build_model()
-        self.model = model
-        self.dt = float(model.opt.timestep) * self.task.frame_skip
-        self.batch = mujoco.batch.Batch(model, n_envs, n_threads, persistent=True)
-        self.task.setup(model, n_envs)
-        self._state = {name: self.batch.bind(name) for name in _STATE_FIELDS}
-        self._derived = {name: self.batch.bind(name) for name in SIM_FIELDS if name not in _STATE_FIELDS}
-        # the derived fields as MjData shows them after mj_step (kept: the batch's own are refreshed by every call)
-        self._snapshot = {name: array.copy() for name, array in self._derived.items()}
-        self._contacts = np.zeros((n_envs, len(self.task.contact_pairs)))
-        self._contact_data = mujoco.MjData(model)
-        self._screen: ContactScreen = ContactScreen(
-            model, [(self.task.geom_id(a), self.task.geom_id(b)) for a, b in self.task.contact_pairs]
-        )
-        arrays = {**self._state, **self._snapshot}
-        self.sim = SimArrays(model, arrays, self.batch.warning[..., 1], contacts=self._contacts)
-        self._scripted = self._check_scripted_starts(scripted_starts)
-        observation_space = Box(low=-np.inf, high=np.inf, shape=(self.task.observation_dim,), dtype=np.float64)
+        self.physics = physics = BatchPhysics(task, n_envs, n_threads)
+        self.model, self.batch, self.sim = physics.model, physics.batch, physics.sim
+        self.dt = float(physics.model.opt.timestep) * task.frame_skip
+        self._scripted = self._scripted_start_options(scripted_starts)
+        observation_space = Box(low=-np.inf, high=np.inf, shape=(task.observation_dim,), dtype=np.float64)
         self._env_attributes: list[dict[str, Any]] = [{} for _ in range(n_envs)]  # set_attr's new per-env attributes
-        super().__init__(n_envs, observation_space, self.task.action_space(model))
+        super().__init__(n_envs, observation_space, physics.action_space)
         self._rngs: list[np.random.Generator | None] = [None] * n_envs
         self._episode_steps = np.zeros(n_envs, dtype=np.int64)
-        self._observations = np.zeros((n_envs, self.task.observation_dim))
+        self._observations = np.zeros((n_envs, task.observation_dim))
         self._actions: NDArray[np.float64] | None = None
         self._monitor = monitor
         self._info_keywords = tuple(info_keywords)
         self._episode_returns = np.zeros(n_envs)
         self._t_start = time.time()
-        self._results_writer = None
+        self._results_writer: ResultsWriter | None = None
         if monitor_file is not None:
             if not monitor:
                 raise ValueError("monitor_file needs monitor=True")
@@ -210,56 +224,14 @@ class BatchVecEnv(VecEnv):
         self._renderers: dict[int, Any] = {}  # one per simulation, as each Gymnasium env has its own camera state
         self._render_data: mujoco.MjData | None = None
 
-    # ------------------------------------------------------------------ physics
-    def _copy_derived(self, ids: NDArray[np.int64] | None) -> None:
-        """Keep the derived fields and the contacts of ``ids`` (all: ``None``) as MjData shows them now."""
-        for name, array in self._derived.items():
-            if ids is None:
-                np.copyto(self._snapshot[name], array)
-            else:
-                self._snapshot[name][ids] = array[ids]
-        if self.task.contact_pairs:  # the contact list has no batched binding: read each simulation's MjData
-            xpos, xmat = self._snapshot["geom_xpos"], self._snapshot["geom_xmat"]
-            if ids is None:  # every simulation: the snapshot as it is, no row copies
-                rows = np.arange(self.num_envs)
-            else:
-                rows = np.asarray(ids)
-                xpos, xmat = xpos[rows], xmat[rows]
-            self._contacts[rows] = 0.0
-            # only where a counted pair may touch: the others' lists hold no counted contact
-            rows = rows[self._screen.may_touch(xpos, xmat)]
-            if len(rows):
-                data, geoms = self._contact_data, []
-                for i in rows:
-                    self.batch.get_data(int(i), data)
-                    geoms.append(data.contact.geom[: data.ncon].copy())
-                self._contacts[rows] = self.task.count_contact_lists(geoms)
-
-    def _physics_step(self, ids: NDArray[np.int64] | None, ctrl: NDArray[np.float64]) -> NDArray[np.bool_]:
-        """Step ``ids`` (all: ``None``) with ``ctrl``; reset and report those that became unstable."""
-        rows = slice(None) if ids is None else ids
-        before = self.sim.instability_warnings()[rows].copy()
-        self._state["ctrl"][rows] = ctrl
-        self.batch.step(ids, nstep=self.task.frame_skip)
-        unstable = (self.sim.instability_warnings()[rows] > before) | ~np.isfinite(self._state["qvel"][rows]).all(axis=1)
-        where = (np.arange(self.num_envs) if ids is None else ids)[unstable]
-        if len(where):  # put the physics back into a valid state, as the Gymnasium env does
-            self.batch.reset(where)
-        self._copy_derived(ids)
-        return unstable
-
-    def _start(self, ids: NDArray[np.int64]) -> None:
-        """Draw and write the start states of ``ids``, each with its own generator."""
-        starts = [self.task.sample_start(self._rng(i)) for i in ids]
-        self.batch.reset(ids, stage=mujoco.mjtStage.mjSTAGE_NONE)
-        for i, (qpos, qvel, mocap_pos) in zip(ids, starts, strict=True):
-            self._state["qpos"][i] = qpos
-            self._state["qvel"][i] = qvel
-            if mocap_pos is not None:
-                self._state["mocap_pos"][i] = mocap_pos
-        self.batch.forward(ids)
-        self._copy_derived(ids)
-        self.task.started(self.sim, ids)
+    def _scripted_start_options(self, arguments: dict[str, Any] | None) -> ScriptedStartOptions | None:
+        """The scripted starts' options (``None``: none, or ``probability`` 0), checked."""
+        if arguments is None:
+            return None
+        if not isinstance(self.task, Grasper3DTask):
+            raise TypeError(f"scripted_starts runs the Grasper's scripted grasp, {self.env_id} is another task")
+        options, _ = ScriptedStartOptions.from_keywords(arguments, "scripted_starts")
+        return options if options.probability > 0 else None
 
     def _rng(self, i: int) -> np.random.Generator:
         if self._rngs[i] is None:
@@ -267,52 +239,15 @@ class BatchVecEnv(VecEnv):
         return self._rngs[i]  # type: ignore[return-value]
 
     def _reset_envs(self, ids: NDArray[np.int64]) -> tuple[NDArray[np.float64], list[dict[str, Any]]]:
-        self._start(ids)
+        """Start the simulations ``ids`` afresh (with scripted starts, where asked for), each with its generator."""
+        rngs = [self._rng(int(i)) for i in ids]
+        self.physics.start(ids, rngs)
         if self._scripted is not None:
-            self._scripted_starts(ids)
+            scripted_starts(self.physics, ids, rngs, self._scripted)
         self._episode_steps[ids] = 0
         observation = self.task.observe(self.sim)
         info = self.task.reset_info(self.sim)
         return observation[ids], [info_of(info, int(i)) for i in ids]
-
-    # ------------------------------------------------------------------ scripted starts (a training aid)
-    def _check_scripted_starts(self, arguments: dict[str, Any] | None) -> dict[str, Any] | None:
-        if arguments is None:
-            return None
-        from grasp_envs.grasper3d import Grasper3DTask
-        from grasp_envs.wrappers import ScriptedStarts
-
-        if not isinstance(self.task, Grasper3DTask):
-            raise TypeError(f"scripted_starts runs the Grasper's scripted grasp, {self.env_id} is another task")
-        unknown = set(arguments) - {"probability", "steps", "hold_height"}
-        if unknown:
-            raise TypeError(f"scripted_starts has no argument {', '.join(map(repr, sorted(unknown)))}")
-        checked = ScriptedStarts.check_arguments(**arguments)
-        return checked if checked["probability"] > 0 else None
-
-    def _scripted_starts(self, ids: NDArray[np.int64]) -> None:
-        """``ScriptedStarts`` for the just-reset ``ids``: the same draws from each env's generator, the scripted
-        grasp stepped for the chosen envs together, a fresh start where a scripted step turned unstable."""
-        from grasp_envs.scripted import grasper3d_actions
-
-        assert self._scripted is not None
-        probability, (low, high), hold_height = (self._scripted[k] for k in ("probability", "steps", "hold_height"))
-        remaining = np.zeros(self.num_envs, dtype=np.int64)
-        for i in ids:
-            rng = self._rng(int(i))
-            if rng.uniform() < probability:
-                remaining[i] = rng.integers(low, high)
-        space = self.action_space
-        while (active := np.flatnonzero(remaining > 0)).size:
-            sub = self.sim.take(active)
-            actions = grasper3d_actions(self.task, sub, space.low, space.high, hold_height=hold_height)
-            actions = np.clip(actions.astype(np.float64), space.low, space.high)
-            unstable = self._physics_step(active, self.task.controls(sub, actions, active))
-            remaining[active] -= 1
-            if unstable.any():  # start from a fresh draw of the task's start state instead, no scripted steps after
-                fresh = active[unstable]
-                remaining[fresh] = 0
-                self._start(fresh)
 
     # ------------------------------------------------------------------ VecEnv
     def reset(self) -> VecEnvObs:
@@ -349,8 +284,7 @@ class BatchVecEnv(VecEnv):
             raise RuntimeError("step_wait called without step_async")
         actions = self._checked_actions(self._actions)
         self._actions = None
-        unstable = self._physics_step(None, self.task.controls(self.sim, actions))
-        observation, reward, terminated, info = self.task.transition(self.sim, actions, unstable)
+        observation, reward, terminated, info = self.physics.step(actions)
         self._episode_steps += 1
         limit = self.max_episode_steps
         truncated = self._episode_steps >= limit if limit is not None else np.zeros(self.num_envs, dtype=bool)
@@ -449,7 +383,10 @@ class BatchVecEnv(VecEnv):
                 raise ValueError(
                     f"{attr_name!r} is an option of all {self.num_envs} simulations of the batch: set it for all envs"
                 )
-            setattr(self.task, attr_name, value)
+            if attr_name in self.task.options.names():  # checked as when the options were made
+                self.task.options = dataclasses.replace(self.task.options, **{attr_name: value})
+            else:
+                setattr(self.task, attr_name, value)
         else:
             for i in rows:
                 self._env_attributes[i][attr_name] = value
@@ -467,8 +404,6 @@ class BatchVecEnv(VecEnv):
     def env_is_wrapped(
         self, wrapper_class: type[gym.Wrapper[Any, Any, Any, Any]], indices: VecEnvIndices = None
     ) -> list[bool]:
-        from grasp_envs.wrappers import ScriptedStarts
-
         wrapped = (self._scripted is not None and issubclass(ScriptedStarts, wrapper_class)) or (
             self._monitor and issubclass(Monitor, wrapper_class)
         )
@@ -497,10 +432,10 @@ def make_batch_env(
     Every argument is checked before the simulations are built: a value of the wrong type or out of range raises
     ``ValueError`` naming the argument and the value.
     """
-    _check_arguments(
-        env_id=env_id, n_envs=n_envs, seed=seed, n_threads=n_threads, wrapper_class=wrapper_class,
-        wrapper_kwargs=wrapper_kwargs, monitor=monitor, info_keywords=info_keywords, monitor_file=monitor_file,
-    )  # fmt: skip
+    check_arguments(ARGUMENT_RULES, {
+        "env_id": env_id, "n_envs": n_envs, "seed": seed, "n_threads": n_threads, "wrapper_class": wrapper_class,
+        "wrapper_kwargs": wrapper_kwargs, "monitor": monitor, "info_keywords": info_keywords, "monitor_file": monitor_file,
+    })  # fmt: skip
     scripted = None
     if wrapper_class is not None:
         scripted = dict(wrapper_kwargs or {})

@@ -2,16 +2,17 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import mujoco
 import numpy as np
-from gymnasium import utils
 from gymnasium.spaces import Box
 from numpy.typing import NDArray
 
-from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, ArmTask, SimArrays, asset_path, check_amount, norm
+from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, ArmTask, SimArrays, TaskOptions, asset_path, norm
 from grasp_envs.control import grip_down_commands, point_jacobians
+from grasp_envs.options import amount, choice, flag, integer, option, path
 
 ARM_JOINTS = ("shoulder_y", "shoulder_z", "elbow_y", "elbow_z", "forearm_roll")
 CLAW_SIDES = ("right", "left")
@@ -76,109 +77,100 @@ Array = NDArray[np.float64]
 Flags = NDArray[np.bool_]
 
 
-class Grasper3DTask(ArmTask):
-    """Grasper3D's step logic over ``n`` simulations (options: ``Grasper3DEnv``; validated here)."""
+@dataclass(frozen=True)
+class Grasper3DOptions(TaskOptions):
+    """Grasper3D's options (``Grasper3DEnv``'s Arguments), each checked when they are made, with the rules that tie
+    them together (the claw rate and the servo's torque need the servo claw)."""
 
-    contact_pairs = CONTACT_PAIRS
+    xml_file: str | None = option(None, path(optional=True))
+    frame_skip: int = option(2, integer(1))
+    claw: str = option("servo", choice(CLAWS))
+    control: str = option("grip_velocity", choice(CONTROLS))
+    ik_mode: str = option("priority", choice(IK_MODES))
+    max_grip_speed: float = option(MAX_GRIP_SPEED, amount(positive=True))
+    claw_rate: float | None = option(None, amount(positive=True, optional=True))
+    observation: str = option("task", choice(OBSERVATIONS))
+    observe_claw_torque: bool | None = option(None, flag(optional=True))
+    cube_rotation: str | None = option("yaw", choice((None, *CUBE_ROTATIONS)))
+    start_pose: str = option("ready", choice(START_POSES))
+    reward_mode: str = option("staged", choice(REWARD_MODES))
+    reach_distance: str = option("claw_segment", choice(REACH_DISTANCES))
+    grasp_test: str = option("per_axis", choice(GRASP_TESTS))
+    reward_reach_weight: float = option(1.0, amount())
+    reward_grasp_weight: float = option(4.0, amount())
+    reward_lift_weight: float = option(4.0, amount())
+    reward_hold_weight: float = option(4.0, amount())
+    reward_floor_weight: float = option(1.0, amount())
+    reward_squeeze_weight: float | None = option(None, amount(optional=True))
+    squeeze_torque: float = option(SQUEEZE_TORQUE, amount(positive=True))
+    reward_control_weight: float | None = option(None, amount(optional=True))
+    terminate_on_success: bool | None = option(None, flag(optional=True))
+    reset_noise_scale: float = option(0.1, amount())
+    lift_height: float = option(0.05, amount(positive=True))
 
-    def __init__(
-        self,
-        xml_file: str | None,
-        frame_skip: int,
-        claw: str,
-        control: str,
-        ik_mode: str,
-        max_grip_speed: float,
-        claw_rate: float | None,
-        observation: str,
-        observe_claw_torque: bool | None,
-        cube_rotation: str | None,
-        start_pose: str,
-        reward_mode: str,
-        reach_distance: str,
-        grasp_test: str,
-        reward_reach_weight: float,
-        reward_grasp_weight: float,
-        reward_lift_weight: float,
-        reward_hold_weight: float,
-        reward_floor_weight: float,
-        reward_squeeze_weight: float | None,
-        squeeze_torque: float,
-        reward_control_weight: float | None,
-        terminate_on_success: bool | None,
-        reset_noise_scale: float,
-        lift_height: float,
-    ):
-        _check_choice("claw", claw, tuple(CLAWS))
-        _check_choice("control", control, CONTROLS)
-        _check_choice("ik_mode", ik_mode, IK_MODES)
-        _check_choice("observation", observation, OBSERVATIONS)
-        _check_choice("cube_rotation", cube_rotation, (None, *CUBE_ROTATIONS))
-        _check_choice("start_pose", start_pose, tuple(START_POSES))
-        _check_choice("reward_mode", reward_mode, REWARD_MODES)
-        _check_choice("reach_distance", reach_distance, REACH_DISTANCES)
-        _check_choice("grasp_test", grasp_test, GRASP_TESTS)
-        for name, flag in (("observe_claw_torque", observe_claw_torque), ("terminate_on_success", terminate_on_success)):
-            if not (flag is None or isinstance(flag, bool)):
-                raise ValueError(f"{name} must be a bool or None, got {flag!r}")
-        check_amount("max_grip_speed", max_grip_speed, "positive number")
-        check_amount("claw_rate", claw_rate, "positive number or None")
-        if claw_rate is not None and (control != "grip_velocity" or claw != "servo"):
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        servo = self.claw == "servo"
+        if self.claw_rate is not None and not (self.control == "grip_velocity" and servo):
             raise ValueError("claw_rate moves the servo claw's target: it needs control='grip_velocity' and claw='servo'")
-        check_amount("squeeze_torque", squeeze_torque, "positive number")
-        check_amount("lift_height", lift_height, "positive number")
-        check_amount("reset_noise_scale", reset_noise_scale)
-        weights = {
-            "reward_reach_weight": reward_reach_weight, "reward_grasp_weight": reward_grasp_weight,
-            "reward_lift_weight": reward_lift_weight, "reward_hold_weight": reward_hold_weight,
-            "reward_floor_weight": reward_floor_weight,
-        }  # fmt: skip
-        for name, weight in weights.items():
-            check_amount(name, weight)
-        check_amount("reward_squeeze_weight", reward_squeeze_weight, "non-negative number or None")
-        check_amount("reward_control_weight", reward_control_weight, "non-negative number or None")
-        servo = claw == "servo"
-        observe_torque = servo if observe_claw_torque is None else observe_claw_torque
-        squeeze_weight = (2.0 if servo else 0.0) if reward_squeeze_weight is None else reward_squeeze_weight
-        if (squeeze_weight or observe_torque) and not servo:
+        if not servo and (self.reward_squeeze_weight or self.observe_claw_torque):  # None and 0 ask for nothing
             raise ValueError(
                 "reward_squeeze_weight and observe_claw_torque read the claw servo's torque: they need claw='servo'"
             )
-        observation_dim = 31 if observation == "joint" else 25
-        observation_dim += int(observe_torque) + (6 if cube_rotation is not None else 0)
-        super().__init__(xml_file or CLAWS[claw], frame_skip, observation_dim)
-        self.claw = claw
-        self.control = control
-        self.max_grip_speed = float(max_grip_speed)
-        self.grip_priority = ik_mode == "priority"
-        self.claw_rate = claw_rate
-        self.observation = observation
-        self.observe_claw_torque = observe_torque
-        self.cube_rotation = cube_rotation
-        self.start_pose = start_pose
-        self.reward_mode = reward_mode
-        self.reach_distance_kind = reach_distance
-        self.grasp_test = grasp_test
-        self.reward_reach_weight = reward_reach_weight
-        self.reward_grasp_weight = reward_grasp_weight
-        self.reward_lift_weight = reward_lift_weight
-        self.reward_hold_weight = reward_hold_weight
-        self.reward_floor_weight = reward_floor_weight
-        self.reward_squeeze_weight = squeeze_weight
-        self.squeeze_torque = float(squeeze_torque)
-        thesis = reward_mode == "thesis"
-        self.reward_control_weight = (1.0 if thesis else 0.1) if reward_control_weight is None else reward_control_weight
-        self.terminate_on_success = thesis if terminate_on_success is None else terminate_on_success
-        self.reset_noise_scale = reset_noise_scale
-        self.lift_height = lift_height
+
+
+class Grasper3DTask(ArmTask):
+    """Grasper3D's step logic over ``n`` simulations. The options whose ``None`` the claw or the reward mode decides
+    (``xml_file``, ``observe_claw_torque``, ``reward_squeeze_weight``, ``reward_control_weight``,
+    ``terminate_on_success``) read as the task's attributes with that decided."""
+
+    options: Grasper3DOptions
+    contact_pairs = CONTACT_PAIRS
+
+    def __init__(self, options: Grasper3DOptions):
+        super().__init__(options)
+        self.observation_dim = (
+            (31 if options.observation == "joint" else 25)
+            + int(self.observe_claw_torque)
+            + (6 if options.cube_rotation is not None else 0)
+        )
+
+    @property
+    def xml_file(self) -> str:
+        """The model: the ``xml_file`` option, or (``None``) the model of the claw."""
+        return self.options.xml_file or CLAWS[self.options.claw]
+
+    @property
+    def observe_claw_torque(self) -> bool:
+        """Whether the claw servo's torque is observed (``None``: with the servo claw)."""
+        observe = self.options.observe_claw_torque
+        return self.options.claw == "servo" if observe is None else observe
+
+    @property
+    def reward_squeeze_weight(self) -> float:
+        """The weight of ``reward_squeeze`` (``None``: 2 with the servo claw, else 0)."""
+        weight = self.options.reward_squeeze_weight
+        return (2.0 if self.options.claw == "servo" else 0.0) if weight is None else weight
+
+    @property
+    def reward_control_weight(self) -> float:
+        """The weight of ``reward_ctrl`` (``None``: 1 in thesis mode, else 0.1)."""
+        weight = self.options.reward_control_weight
+        return (1.0 if self.options.reward_mode == "thesis" else 0.1) if weight is None else weight
+
+    @property
+    def terminate_on_success(self) -> bool:
+        """Whether success ends the episode (``None``: in thesis mode only)."""
+        terminate = self.options.terminate_on_success
+        return self.options.reward_mode == "thesis" if terminate is None else terminate
 
     # ------------------------------------------------------------------ the model
     def edit_spec(self, spec: mujoco.MjSpec) -> None:
-        if self.cube_rotation is not None:
-            add_cube_rotation(spec, self.cube_rotation)
+        if self.options.cube_rotation is not None:
+            add_cube_rotation(spec, self.options.cube_rotation)
 
     def action_space(self, model: mujoco.MjModel) -> Box:
-        if self.control == "grip_velocity":
+        if self.options.control == "grip_velocity":
             return Box(low=-1.0, high=1.0, shape=(4,), dtype=np.float32)
         return super().action_space(model)
 
@@ -197,8 +189,8 @@ class Grasper3DTask(ArmTask):
         self.forearm_body = int(model.body("forearm").id)
         self.grip_site, self.palm_site = self.site_id("grip"), self.site_id("palm")
         self.claw_sites = self.site_id("claw_right"), self.site_id("claw_left")
-        if self.start_pose != "stretched":
-            self.init_qpos[self.arm_qpos] = START_POSES[self.start_pose]
+        if self.options.start_pose != "stretched":
+            self.init_qpos[self.arm_qpos] = START_POSES[self.options.start_pose]
         self.lift_bonus_paid = np.zeros(n, dtype=bool)
         self.claw_target = np.full(n, CLAW_OPEN_TARGET)
         self.contacts = self.no_contacts(n)
@@ -261,7 +253,7 @@ class Grasper3DTask(ArmTask):
         ``"between"`` at most 2 cm in all, a cube held by the top or bottom capsules only sits ~1 cm off the sites'
         plane and one pressed from above >= 3 cm; ``"per_axis"`` at most 2.5 cm along the forearm and along the
         claw's hinge axis, each)."""
-        if self.grasp_test == "between":
+        if self.options.grasp_test == "between":
             t, offset = self.cube_off_claw_segment(sim)
             return (t > 0.0) & (t < 1.0) & (norm(offset) < BETWEEN_TOLERANCE)
         t, offset = self.cube_off_claw_segment_in_forearm_frame(sim)
@@ -276,7 +268,7 @@ class Grasper3DTask(ArmTask):
         summary["floor"] = counts[:, _BOTTOM_FLOOR_ROWS].sum(axis=1).astype(np.int64)
         summary["claw_claw"] = np.minimum(counts[:, 16:32].sum(axis=1), 2).astype(np.int64)
         summary["claw_floor"] = (counts[:, 8:16] > 0).any(axis=1).astype(np.int64)
-        if self.grasp_test == "touch":
+        if self.options.grasp_test == "touch":
             summary["between"] = np.zeros(sim.n, dtype=np.int64)
         else:
             summary["between"] = self.cube_between_claws(sim).astype(np.int64)
@@ -284,7 +276,7 @@ class Grasper3DTask(ArmTask):
 
     def is_grasped(self, contacts: dict[str, NDArray[np.int64]]) -> Flags:
         touched = (contacts["right"] > 0) & (contacts["left"] > 0)
-        return touched if self.grasp_test == "touch" else touched & (contacts["between"] > 0)
+        return touched if self.options.grasp_test == "touch" else touched & (contacts["between"] > 0)
 
     def reach_distance(self, sim: SimArrays) -> Array:
         """The distance ``reward_reach`` shrinks (m): grip site to cube centre, or the thesis' claw terms
@@ -292,39 +284,41 @@ class Grasper3DTask(ArmTask):
         between the claw sites: they pull the claw to straddle the cube, and to open for it, rather than towards a
         point that a closed claw would press onto the cube."""
         cube = self.cube_pos(sim)
-        if self.reach_distance_kind == "grip":
+        if self.options.reach_distance == "grip":
             return norm(sim.site_xpos[:, self.grip_site] - cube)
         right, left = sim.site_xpos[:, self.claw_sites[0]], sim.site_xpos[:, self.claw_sites[1]]
         return norm(right - cube) + norm(left - cube) - norm(left - right)
 
     def success(self, sim: SimArrays) -> Flags:
-        return (self.cube_height(sim) >= self.lift_height) & self.is_grasped(self.contacts)
+        return (self.cube_height(sim) >= self.options.lift_height) & self.is_grasped(self.contacts)
 
     # ------------------------------------------------------------------ stepping
     def controls(self, sim: SimArrays, action: Array, ids: NDArray[np.int64] | None = None) -> Array:
-        if self.control == "joint_torque":
+        options = self.options
+        if options.control == "joint_torque":
             return action
-        arm = grip_down_commands(sim, self.max_grip_speed * action[:, :3], self.grip_priority)
+        grip_velocity = float(options.max_grip_speed) * action[:, :3]
+        arm = grip_down_commands(sim, grip_velocity, grip_priority=options.ik_mode == "priority")
         claw = action[:, 3]
-        if self.claw_rate is not None:  # the action moves the servo's target angle; ctrl aims the servo there
+        if options.claw_rate is not None:  # the action moves the servo's target angle; ctrl aims the servo there
             rows = slice(None) if ids is None else ids
-            target = np.clip(self.claw_target[rows] + self.claw_rate * claw, *CLAW_TARGET_RANGE)
+            target = np.clip(self.claw_target[rows] + options.claw_rate * claw, *CLAW_TARGET_RANGE)
             self.claw_target[rows] = target
             claw = (target - CLAW_OPEN_TARGET) / CLAW_SERVO_SLOPE
         return np.clip(np.concatenate([arm, claw[:, None]], axis=1), self.ctrl_low, self.ctrl_high)
 
     # ------------------------------------------------------------------ reward
     def reward(self, sim: SimArrays, action: Array) -> tuple[Array, dict[str, Any]]:
-        contacts = self.contacts
+        options, contacts = self.options, self.contacts
         height = self.cube_height(sim)
         ctrl = -self.reward_control_weight * np.square(action).sum(axis=1)
         cube = self.cube_pos(sim)
         grasped = self.is_grasped(contacts)
         n_cube = contacts["right"] + contacts["left"]
         info: dict[str, Any] = {"cube_height": height, "claw_cube_contacts": n_cube}
-        if self.reward_mode == "thesis":
+        if options.reward_mode == "thesis":
             right, left = sim.site_xpos[:, self.claw_sites[0]], sim.site_xpos[:, self.claw_sites[1]]
-            lifted = (height >= self.lift_height) & (n_cube > 3)
+            lifted = (height >= options.lift_height) & (n_cube > 3)
             self.lift_bonus_paid = lifted
             terms = {
                 "reward_dist": -norm(sim.site_xpos[:, self.palm_site] - cube) - norm(right - cube) - norm(left - cube)
@@ -337,21 +331,23 @@ class Grasper3DTask(ArmTask):
             }  # fmt: skip
             info.update(terms)
             return sum(terms.values()), info
-        solved = grasped & (height >= self.lift_height)
+        solved = grasped & (height >= options.lift_height)
         terms = {
-            "reward_reach": self.reward_reach_weight * (1.0 - np.tanh(10.0 * self.reach_distance(sim))),
-            "reward_grasp": self.reward_grasp_weight * n_cube / 8.0,
-            "reward_lift": self.reward_lift_weight * grasped * np.minimum(np.maximum(height, 0.0) / self.lift_height, 1.0),
-            "reward_hold": self.reward_hold_weight * solved.astype(np.float64),
+            "reward_reach": options.reward_reach_weight * (1.0 - np.tanh(10.0 * self.reach_distance(sim))),
+            "reward_grasp": options.reward_grasp_weight * n_cube / 8.0,
+            "reward_lift": options.reward_lift_weight
+            * grasped
+            * np.minimum(np.maximum(height, 0.0) / options.lift_height, 1.0),
+            "reward_hold": options.reward_hold_weight * solved.astype(np.float64),
             "reward_ctrl": ctrl,
         }
         # the floor and squeeze terms are added one after the other, in this order, to the sum of the others
         if self.reward_squeeze_weight:
-            squeeze = np.minimum(np.maximum(self.claw_torque(sim), 0.0) / self.squeeze_torque, 1.0)
+            squeeze = np.minimum(np.maximum(self.claw_torque(sim), 0.0) / float(options.squeeze_torque), 1.0)
         else:
             squeeze = np.zeros(sim.n)
         extra = {
-            "reward_floor": -self.reward_floor_weight * contacts["claw_floor"],
+            "reward_floor": -options.reward_floor_weight * contacts["claw_floor"],
             "reward_squeeze": self.reward_squeeze_weight * grasped * squeeze,
         }
         reward = sum(terms.values())
@@ -365,7 +361,7 @@ class Grasper3DTask(ArmTask):
         if not self.terminate_on_success:
             return np.zeros(sim.n, dtype=bool)
         # thesis mode: the episode ends with the lift bonus (height and more than 3 capsules on the cube)
-        return self.lift_bonus_paid.copy() if self.reward_mode == "thesis" else self.success(sim)
+        return self.lift_bonus_paid.copy() if self.options.reward_mode == "thesis" else self.success(sim)
 
     # ------------------------------------------------------------------ observation and reset
     def joint_space_observation(self, sim: SimArrays) -> Array:
@@ -392,19 +388,19 @@ class Grasper3DTask(ArmTask):
         return np.concatenate(parts, axis=1)
 
     def observe(self, sim: SimArrays) -> Array:
-        if self.observation == "joint":
+        if self.options.observation == "joint":
             observation = self.joint_space_observation(sim)
         else:
             forearm = self.forearm_frame(sim)
             kept = TASK_KEPT_JOINT_ROWS if self.observe_claw_torque else TASK_KEPT_JOINT_ROWS[:-1]
             parts = [self.grip_velocity(sim), forearm[:, :, 0], forearm[:, :, 2], self.joint_space_observation(sim)[:, kept]]
             observation = np.concatenate(parts, axis=1)
-        if self.cube_rotation is not None:
+        if self.options.cube_rotation is not None:
             observation = np.concatenate([observation, self.cube_axes(sim)], axis=1)
         return observation
 
     def sample_start(self, rng: np.random.Generator) -> tuple[Array, Array, None]:
-        noise = self.reset_noise_scale
+        noise = self.options.reset_noise_scale
         qpos = self.init_qpos.copy()
         qpos[self.arm_qpos] += rng.uniform(-noise, noise, size=len(ARM_JOINTS))
         claw = rng.uniform(-noise, noise)
@@ -613,6 +609,9 @@ class Grasper3DEnv(ArmEnv):
     id, through Gymnasium's `TimeLimit`; the class itself never truncates).
 
     ## Arguments
+    Keywords only: the options (`Grasper3DOptions`, checked when the env is made: a bad value raises `ValueError`
+    naming it, an unknown keyword `TypeError`) and Gymnasium's rendering arguments.
+
     | Parameter | Default | Description |
     |-----------|---------|-------------|
     | `xml_file` | `None` | MuJoCo model; `None`: the model of `claw` |
@@ -670,55 +669,20 @@ class Grasper3DEnv(ArmEnv):
       radius 0.1 m.
     """
 
-    task: Grasper3DTask
+    options_class = Grasper3DOptions
     task_class = Grasper3DTask
+    default_camera = DEFAULT_CAMERA_CONFIG_3D
+    task: Grasper3DTask
 
-    def __init__(
-        self,
-        xml_file: str | None = None,
-        frame_skip: int = 2,
-        default_camera_config: dict[str, Any] = DEFAULT_CAMERA_CONFIG_3D,
-        claw: str = "servo",
-        control: str = "grip_velocity",
-        ik_mode: str = "priority",
-        max_grip_speed: float = MAX_GRIP_SPEED,
-        claw_rate: float | None = None,
-        observation: str = "task",
-        observe_claw_torque: bool | None = None,
-        cube_rotation: str | None = "yaw",
-        start_pose: str = "ready",
-        reward_mode: str = "staged",
-        reach_distance: str = "claw_segment",
-        grasp_test: str = "per_axis",
-        reward_reach_weight: float = 1.0,
-        reward_grasp_weight: float = 4.0,
-        reward_lift_weight: float = 4.0,
-        reward_hold_weight: float = 4.0,
-        reward_floor_weight: float = 1.0,
-        reward_squeeze_weight: float | None = None,
-        squeeze_torque: float = SQUEEZE_TORQUE,
-        reward_control_weight: float | None = None,
-        terminate_on_success: bool | None = None,
-        reset_noise_scale: float = 0.1,
-        lift_height: float = 0.05,
-        **kwargs: Any,
-    ):
-        options: dict[str, Any] = dict(
-            xml_file=xml_file, frame_skip=frame_skip, claw=claw, control=control, ik_mode=ik_mode,
-            max_grip_speed=max_grip_speed, claw_rate=claw_rate, observation=observation,
-            observe_claw_torque=observe_claw_torque, cube_rotation=cube_rotation, start_pose=start_pose,
-            reward_mode=reward_mode, reach_distance=reach_distance, grasp_test=grasp_test,
-            reward_reach_weight=reward_reach_weight, reward_grasp_weight=reward_grasp_weight,
-            reward_lift_weight=reward_lift_weight, reward_hold_weight=reward_hold_weight,
-            reward_floor_weight=reward_floor_weight, reward_squeeze_weight=reward_squeeze_weight,
-            squeeze_torque=squeeze_torque, reward_control_weight=reward_control_weight,
-            terminate_on_success=terminate_on_success, reset_noise_scale=reset_noise_scale, lift_height=lift_height,
-        )  # fmt: skip
-        task = Grasper3DTask(**options)
-        utils.EzPickle.__init__(self, default_camera_config=default_camera_config, **options, **kwargs)
-        self.control = task.control
-        self.max_grip_speed = task.max_grip_speed
-        ArmEnv.__init__(self, task, default_camera_config, **kwargs)
+    @property
+    def control(self) -> str:
+        """The ``control`` option: what an action commands."""
+        return self.task.options.control
+
+    @property
+    def max_grip_speed(self) -> float:
+        """The ``max_grip_speed`` option (m/s of the grip site at an action of 1)."""
+        return float(self.task.options.max_grip_speed)
 
     # ------------------------------------------------------------------ the task's quantities for this simulation
     def cube_pos(self) -> NDArray[np.float64]:
@@ -753,9 +717,4 @@ def add_cube_rotation(spec: mujoco.MjSpec, cube_rotation: str = "yaw") -> None:
     )
 
 
-def _check_choice(name: str, value: Any, choices: tuple[Any, ...]) -> None:
-    if not any(value is choice or (isinstance(value, str) and value == choice) for choice in choices):
-        raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
-
-
-__all__ = ["Grasper3DEnv", "Grasper3DTask", "add_cube_rotation", "asset_path"]
+__all__ = ["Grasper3DEnv", "Grasper3DOptions", "Grasper3DTask", "add_cube_rotation", "asset_path"]

@@ -2,43 +2,37 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from gymnasium import utils
 from numpy.typing import NDArray
 
-from grasp_envs.base import ArmEnv, ArmTask, SimArrays, check_amount, check_near_bonus, near_bonus, norm
+from grasp_envs.base import ArmEnv, ArmTask, SimArrays, Start, TaskOptions, near_bonus, norm
+from grasp_envs.options import amount, integer, option, path
 
 DEFAULT_CAMERA_CONFIG: dict[str, Any] = {"trackbodyid": 0, "distance": 0.9, "elevation": -90.0}
 
 
-class Reacher2DTask(ArmTask):
-    """Reacher2D's step logic over ``n`` simulations (options: ``Reacher2DEnv``)."""
+@dataclass(frozen=True)
+class Reacher2DOptions(TaskOptions):
+    """Reacher2D's options (``Reacher2DEnv``'s Arguments), each checked when they are made."""
 
-    def __init__(
-        self,
-        xml_file: str,
-        frame_skip: int,
-        reward_dist_weight: float,
-        reward_control_weight: float,
-        reward_near_weight: float,
-        near_scale: float,
-        reset_noise_scale: float,
-        success_distance: float,
-    ):
-        check_near_bonus(reward_near_weight, near_scale)
-        for name, value in (("reward_dist_weight", reward_dist_weight), ("reward_control_weight", reward_control_weight)):
-            check_amount(name, value)
-        check_amount("reset_noise_scale", reset_noise_scale)
-        check_amount("success_distance", success_distance, "positive number")
-        super().__init__(xml_file, frame_skip, observation_dim=10)
-        self.reward_dist_weight = reward_dist_weight
-        self.reward_control_weight = reward_control_weight
-        self.reward_near_weight = reward_near_weight
-        self.near_scale = near_scale
-        self.reset_noise_scale = reset_noise_scale
-        self.success_distance = success_distance
+    xml_file: str = option("reacher2d.xml", path())
+    frame_skip: int = option(2, integer(1))
+    reward_dist_weight: float = option(1.0, amount())
+    reward_control_weight: float = option(1.0, amount())
+    reward_near_weight: float = option(0.5, amount())
+    near_scale: float = option(0.05, amount(positive=True))
+    reset_noise_scale: float = option(0.1, amount())
+    success_distance: float = option(0.02, amount(positive=True))
+
+
+class Reacher2DTask(ArmTask):
+    """Reacher2D's step logic over ``n`` simulations."""
+
+    options: Reacher2DOptions
+    observation_dim = 10
 
     def setup(self, model: Any, n: int) -> None:
         super().setup(model, n)
@@ -51,23 +45,24 @@ class Reacher2DTask(ArmTask):
         return norm(self.fingertip_to_target(sim))
 
     def reward(self, sim: SimArrays, action: NDArray[np.float64]) -> tuple[NDArray[np.float64], dict[str, Any]]:
+        options = self.options
         distance = self.distance(sim)
-        reward_dist = -self.reward_dist_weight * distance
-        reward_ctrl = -self.reward_control_weight * np.square(action).sum(axis=1)
-        reward_near = near_bonus(distance, self.reward_near_weight, self.near_scale)
+        reward_dist = -options.reward_dist_weight * distance
+        reward_ctrl = -options.reward_control_weight * np.square(action).sum(axis=1)
+        reward_near = near_bonus(distance, options.reward_near_weight, options.near_scale)
         info = {"reward_dist": reward_dist, "reward_ctrl": reward_ctrl, "distance": distance, "reward_near": reward_near}
         return reward_dist + reward_ctrl + reward_near, info
 
     def success(self, sim: SimArrays) -> NDArray[np.bool_]:
-        return self.distance(sim) < self.success_distance
+        return self.distance(sim) < self.options.success_distance
 
     def observe(self, sim: SimArrays) -> NDArray[np.float64]:
         theta = sim.qpos[:, :2]
         parts = [np.cos(theta), np.sin(theta), sim.mocap_pos[:, 0, :2], sim.qvel[:, :2], self.fingertip_to_target(sim)[:, :2]]
         return np.concatenate(parts, axis=1)
 
-    def sample_start(self, rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        noise = self.reset_noise_scale
+    def sample_start(self, rng: np.random.Generator) -> Start:
+        noise = self.options.reset_noise_scale
         qpos = self.init_qpos + rng.uniform(-noise, noise, size=self.model.nq)
         qvel = self.init_qvel + rng.uniform(-0.005, 0.005, size=self.model.nv)
         while True:
@@ -125,6 +120,9 @@ class Reacher2DEnv(ArmEnv):
     No termination (except `info["unstable"]`); truncation after 50 steps (`max_episode_steps`).
 
     ## Arguments
+    Keywords only: the options (`Reacher2DOptions`, checked when the env is made: a bad value raises `ValueError`
+    naming it, an unknown keyword `TypeError`) and Gymnasium's rendering arguments.
+
     | Parameter | Default | Description |
     |-----------|---------|-------------|
     | `xml_file` | `"reacher2d.xml"` | MuJoCo model (bare names are looked up in `grasp_envs/assets`) |
@@ -136,6 +134,7 @@ class Reacher2DEnv(ArmEnv):
     | `near_scale` | `0.05` | distance scale $\sigma$ of `reward_near` (m) |
     | `reset_noise_scale` | `0.1` | half-width of the initial joint-angle noise (rad) |
     | `success_distance` | `0.02` | fingertip-target distance counted as success (m) |
+    | `**kwargs` | | passed on to Gymnasium's `MujocoEnv`: `render_mode`, `width`, `height`, `camera_id`, ... |
 
     ## Version History
     Each id is a preset of the options above (`grasp_envs.registration.PRESETS`).
@@ -147,33 +146,10 @@ class Reacher2DEnv(ArmEnv):
       state), success is reported.
     """
 
-    task: Reacher2DTask
+    options_class = Reacher2DOptions
     task_class = Reacher2DTask
-
-    def __init__(
-        self,
-        xml_file: str = "reacher2d.xml",
-        frame_skip: int = 2,
-        default_camera_config: dict[str, Any] = DEFAULT_CAMERA_CONFIG,
-        reward_dist_weight: float = 1.0,
-        reward_control_weight: float = 1.0,
-        reward_near_weight: float = 0.5,
-        near_scale: float = 0.05,
-        reset_noise_scale: float = 0.1,
-        success_distance: float = 0.02,
-        **kwargs: Any,
-    ):
-        task = Reacher2DTask(
-            xml_file, frame_skip, reward_dist_weight, reward_control_weight, reward_near_weight, near_scale,
-            reset_noise_scale, success_distance,
-        )  # fmt: skip
-        utils.EzPickle.__init__(
-            self, xml_file=xml_file, frame_skip=frame_skip, default_camera_config=default_camera_config,
-            reward_dist_weight=reward_dist_weight, reward_control_weight=reward_control_weight,
-            reward_near_weight=reward_near_weight, near_scale=near_scale, reset_noise_scale=reset_noise_scale,
-            success_distance=success_distance, **kwargs,
-        )  # fmt: skip
-        ArmEnv.__init__(self, task, default_camera_config, **kwargs)
+    default_camera = DEFAULT_CAMERA_CONFIG
+    task: Reacher2DTask
 
     def distance(self) -> float:
         return float(self.task.distance(self.sim)[0])

@@ -3,55 +3,43 @@ version is a preset."""
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from gymnasium import utils
 from numpy.typing import NDArray
 
-from grasp_envs.base import (
-    DEFAULT_CAMERA_CONFIG_3D,
-    ArmEnv,
-    ArmTask,
-    SimArrays,
-    check_amount,
-    check_near_bonus,
-    near_bonus,
-    norm,
-)
+from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, ArmTask, SimArrays, Start, TaskOptions, near_bonus, norm
+from grasp_envs.options import amount, integer, option, path
+
+if TYPE_CHECKING:
+    from grasp_envs.wall_reacher3d import WallReacher3DOptions
 
 ARM_JOINTS = ("shoulder_y", "shoulder_z", "elbow_y", "elbow_z")
 FLOOR_Z = -0.2
 TARGET_HALF_SIZE = 0.012
 
 
-class Reacher3DTask(ArmTask):
-    """Reacher3D's step logic over ``n`` simulations (options: ``Reacher3DEnv``)."""
+@dataclass(frozen=True)
+class Reacher3DOptions(TaskOptions):
+    """Reacher3D's options (``Reacher3DEnv``'s Arguments), each checked when they are made."""
 
-    def __init__(
-        self,
-        xml_file: str,
-        frame_skip: int,
-        reward_dist_weight: float,
-        reward_control_weight: float,
-        reward_near_weight: float,
-        near_scale: float,
-        reset_noise_scale: float,
-        success_distance: float,
-        observation_dim: int = 18,
-    ):
-        check_near_bonus(reward_near_weight, near_scale)
-        for name, value in (("reward_dist_weight", reward_dist_weight), ("reward_control_weight", reward_control_weight)):
-            check_amount(name, value)
-        check_amount("reset_noise_scale", reset_noise_scale)
-        check_amount("success_distance", success_distance, "positive number")
-        super().__init__(xml_file, frame_skip, observation_dim)
-        self.reward_dist_weight = reward_dist_weight
-        self.reward_control_weight = reward_control_weight
-        self.reward_near_weight = reward_near_weight
-        self.near_scale = near_scale
-        self.reset_noise_scale = reset_noise_scale
-        self.success_distance = success_distance
+    xml_file: str = option("reacher3d.xml", path())
+    frame_skip: int = option(2, integer(1))
+    reward_dist_weight: float = option(1.0, amount())
+    reward_control_weight: float = option(1.0, amount())
+    reward_near_weight: float = option(0.5, amount())
+    near_scale: float = option(0.05, amount(positive=True))
+    reset_noise_scale: float = option(0.1, amount())
+    success_distance: float = option(0.02, amount(positive=True))
+
+
+class ReachingArmTask(ArmTask):
+    """The 4-DoF arm hanging from the ceiling that reaches a target on the table, over ``n`` simulations: what
+    Reacher3D and WallReacher3D share (actions, joint observation, palm-to-target distance, the distance and control
+    reward terms, success, the start of the arm), each task adding its own reward and target."""
+
+    options: Reacher3DOptions | WallReacher3DOptions
 
     def setup(self, model: Any, n: int) -> None:
         super().setup(model, n)
@@ -69,18 +57,13 @@ class Reacher3DTask(ArmTask):
     def reacher_terms(self, sim: SimArrays, action: NDArray[np.float64]) -> dict[str, Any]:
         distance = self.distance(sim)
         return {
-            "reward_dist": -self.reward_dist_weight * distance,
-            "reward_ctrl": -self.reward_control_weight * np.square(action).sum(axis=1),
+            "reward_dist": -self.options.reward_dist_weight * distance,
+            "reward_ctrl": -self.options.reward_control_weight * np.square(action).sum(axis=1),
             "distance": distance,
         }
 
-    def reward(self, sim: SimArrays, action: NDArray[np.float64]) -> tuple[NDArray[np.float64], dict[str, Any]]:
-        info = self.reacher_terms(sim, action)
-        info["reward_near"] = near_bonus(info["distance"], self.reward_near_weight, self.near_scale)
-        return info["reward_dist"] + info["reward_ctrl"] + info["reward_near"], info
-
     def success(self, sim: SimArrays) -> NDArray[np.bool_]:
-        return self.distance(sim) < self.success_distance
+        return self.distance(sim) < self.options.success_distance
 
     def observe(self, sim: SimArrays) -> NDArray[np.float64]:
         angles = sim.qpos[:, :4]
@@ -93,15 +76,27 @@ class Reacher3DTask(ArmTask):
         return np.array([radius * np.cos(angle), radius * np.sin(angle), FLOOR_Z + TARGET_HALF_SIZE])
 
     def initial_qpos(self, rng: np.random.Generator) -> NDArray[np.float64]:
-        noise = self.reset_noise_scale
+        noise = self.options.reset_noise_scale
         return self.init_qpos + rng.uniform(-noise, noise, size=self.model.nq)
 
-    def sample_start(self, rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    def sample_start(self, rng: np.random.Generator) -> Start:
         mocap_pos = self.default_mocap_pos.copy()
         mocap_pos[0] = self.sample_target(rng)
         qpos = self.initial_qpos(rng)
         qvel = self.init_qvel + rng.uniform(-0.005, 0.005, size=self.model.nv)
         return qpos, qvel, mocap_pos
+
+
+class Reacher3DTask(ReachingArmTask):
+    """Reacher3D's step logic over ``n`` simulations: the reaching arm with the precision bonus ``reward_near``."""
+
+    options: Reacher3DOptions
+    observation_dim = 18
+
+    def reward(self, sim: SimArrays, action: NDArray[np.float64]) -> tuple[NDArray[np.float64], dict[str, Any]]:
+        info = self.reacher_terms(sim, action)
+        info["reward_near"] = near_bonus(info["distance"], self.options.reward_near_weight, self.options.near_scale)
+        return info["reward_dist"] + info["reward_ctrl"] + info["reward_near"], info
 
 
 class Reacher3DEnv(ArmEnv):
@@ -160,6 +155,9 @@ class Reacher3DEnv(ArmEnv):
     No termination (except `info["unstable"]`); truncation after 100 steps (`max_episode_steps`, as the thesis).
 
     ## Arguments
+    Keywords only: the options (`Reacher3DOptions`, checked when the env is made: a bad value raises `ValueError`
+    naming it, an unknown keyword `TypeError`) and Gymnasium's rendering arguments.
+
     | Parameter | Default | Description |
     |-----------|---------|-------------|
     | `xml_file` | `"reacher3d.xml"` | MuJoCo model |
@@ -171,6 +169,7 @@ class Reacher3DEnv(ArmEnv):
     | `near_scale` | `0.05` | distance scale $\sigma$ of `reward_near` (m) |
     | `reset_noise_scale` | `0.1` | half-width of the initial joint-angle noise (rad) |
     | `success_distance` | `0.02` | palm-target distance counted as success (m) |
+    | `**kwargs` | | passed on to Gymnasium's `MujocoEnv`: `render_mode`, `width`, `height`, `camera_id`, ... |
 
     ## Version History
     Each id is a preset of the options above (`grasp_envs.registration.PRESETS`).
@@ -183,33 +182,10 @@ class Reacher3DEnv(ArmEnv):
       is a mocap body.
     """
 
-    task: Reacher3DTask
+    options_class = Reacher3DOptions
     task_class = Reacher3DTask
-
-    def __init__(
-        self,
-        xml_file: str = "reacher3d.xml",
-        frame_skip: int = 2,
-        default_camera_config: dict[str, Any] = DEFAULT_CAMERA_CONFIG_3D,
-        reward_dist_weight: float = 1.0,
-        reward_control_weight: float = 1.0,
-        reward_near_weight: float = 0.5,
-        near_scale: float = 0.05,
-        reset_noise_scale: float = 0.1,
-        success_distance: float = 0.02,
-        **kwargs: Any,
-    ):
-        task = Reacher3DTask(
-            xml_file, frame_skip, reward_dist_weight, reward_control_weight, reward_near_weight, near_scale,
-            reset_noise_scale, success_distance,
-        )  # fmt: skip
-        utils.EzPickle.__init__(
-            self, xml_file=xml_file, frame_skip=frame_skip, default_camera_config=default_camera_config,
-            reward_dist_weight=reward_dist_weight, reward_control_weight=reward_control_weight,
-            reward_near_weight=reward_near_weight, near_scale=near_scale, reset_noise_scale=reset_noise_scale,
-            success_distance=success_distance, **kwargs,
-        )  # fmt: skip
-        ArmEnv.__init__(self, task, default_camera_config, **kwargs)
+    default_camera = DEFAULT_CAMERA_CONFIG_3D
+    task: Reacher3DTask
 
     def distance(self) -> float:
         return float(self.task.distance(self.sim)[0])

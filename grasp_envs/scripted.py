@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from grasp_envs.base import ArmEnv, SimArrays, norm
 from grasp_envs.control import grip_down_commands, reach, velocity_servo
+from grasp_envs.grasper3d import Grasper3DTask
 
 
 def reacher2d_policy(env: ArmEnv) -> NDArray[np.float64]:
@@ -51,7 +52,7 @@ APPROACH_SPEED, LIFT_SPEED = 0.35, 0.25  # m/s of the grip site
 
 
 def grasper3d_actions(
-    task: Any, sim: SimArrays, action_low: NDArray[Any], action_high: NDArray[Any], lift: bool = True,
+    task: Grasper3DTask, sim: SimArrays, action_low: NDArray[Any], action_high: NDArray[Any], lift: bool = True,
     hold_height: float | None = None,
 ) -> NDArray[np.float64]:  # fmt: skip
     """The scripted grasp's actions ``(n, action_dim)`` for ``n`` simulations of a ``Grasper3DTask``: open, align
@@ -89,7 +90,10 @@ def grasper3d_actions(
     if servo:
         claw = np.where(claw > 0, SERVO_GRIP_COMMAND, -1.0)
     # with grip-velocity control the action is the grip velocity itself
-    arm = approach / task.max_grip_speed if task.control == "grip_velocity" else grip_down_commands(sim, approach)
+    if task.options.control == "grip_velocity":
+        arm = approach / float(task.options.max_grip_speed)
+    else:
+        arm = grip_down_commands(sim, approach)
     return np.clip(np.concatenate([arm, claw[:, None]], axis=1), action_low, action_high)
 
 
@@ -103,6 +107,7 @@ def grasper3d_policy(env: ArmEnv, lift: bool = True, hold_height: float | None =
     resets: lost after lifting 13 times; hold at 0.07: 3); one that can turn with it mostly stays (Grasper3D-v6: 2).
     """
     space = env.action_space
+    assert isinstance(env.task, Grasper3DTask), f"grasper3d_policy drives the Grasper, got {type(env).__name__}"
     return grasper3d_actions(env.task, env.sim, space.low, space.high, lift, hold_height)[0]
 
 

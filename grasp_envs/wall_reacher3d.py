@@ -2,48 +2,46 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from gymnasium import utils
 from numpy.typing import NDArray
 
-from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, SimArrays, check_amount, norm
-from grasp_envs.reacher3d import FLOOR_Z, TARGET_HALF_SIZE, Reacher3DTask
+from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, SimArrays, Start, TaskOptions, norm
+from grasp_envs.options import amount, integer, option, path
+from grasp_envs.reacher3d import FLOOR_Z, TARGET_HALF_SIZE, ReachingArmTask
 
 WALL_CAMERA_CONFIG: dict[str, Any] = {**DEFAULT_CAMERA_CONFIG_3D, "azimuth": 90.0, "elevation": -60.0}
 ARM_GEOMS = ["upper_arm", "forearm"]
 
 
-class WallReacher3DTask(Reacher3DTask):
-    """WallReacher3D's step logic over ``n`` simulations (options: ``WallReacher3DEnv``).
+@dataclass(frozen=True)
+class WallReacher3DOptions(TaskOptions):
+    """WallReacher3D's options (``WallReacher3DEnv``'s Arguments), each checked when they are made."""
 
-    A task of its own (thesis 5.2.4), not a version of Reacher3D: it reuses the 3D reacher's arm (actions, joint
-    observation, palm-to-target distance) and its distance and control reward terms, and adds the wall: its contact
-    and proximity penalties, the target behind it, the success that needs no wall contact in the episode.
+    xml_file: str = option("wall_reacher3d.xml", path())
+    frame_skip: int = option(2, integer(1))
+    reward_dist_weight: float = option(1.0, amount())
+    reward_control_weight: float = option(1.0, amount())
+    reward_wall_weight: float = option(1.0, amount())
+    reward_proximity_weight: float = option(1.0, amount())
+    reset_noise_scale: float = option(0.1, amount())
+    success_distance: float = option(0.02, amount(positive=True))
+
+
+class WallReacher3DTask(ReachingArmTask):
+    """WallReacher3D's step logic over ``n`` simulations.
+
+    A task of its own (thesis 5.2.4), not a version of Reacher3D: it shares the 3D reacher's arm (actions, joint
+    observation, palm-to-target distance) and its distance and control reward terms (``ReachingArmTask``), and adds
+    the wall: its contact and proximity penalties, the target behind it, the success that needs no wall contact in
+    the episode.
     """
 
+    options: WallReacher3DOptions
+    observation_dim = 21
     contact_pairs = tuple((geom, "wall") for geom in ARM_GEOMS)
-
-    def __init__(
-        self,
-        xml_file: str,
-        frame_skip: int,
-        reward_dist_weight: float,
-        reward_control_weight: float,
-        reward_wall_weight: float,
-        reward_proximity_weight: float,
-        reset_noise_scale: float,
-        success_distance: float,
-    ):
-        super().__init__(
-            xml_file, frame_skip, reward_dist_weight, reward_control_weight, 0.0, 0.05, reset_noise_scale,
-            success_distance, observation_dim=21,
-        )  # fmt: skip
-        check_amount("reward_wall_weight", reward_wall_weight)
-        check_amount("reward_proximity_weight", reward_proximity_weight)
-        self.reward_wall_weight = reward_wall_weight
-        self.reward_proximity_weight = reward_proximity_weight
 
     def setup(self, model: Any, n: int) -> None:
         super().setup(model, n)
@@ -65,13 +63,14 @@ class WallReacher3DTask(Reacher3DTask):
         contacts = self.wall_contacts(sim)
         self.wall_touched |= contacts > 0
         info["wall_contacts"] = contacts
-        info["reward_wall"] = -self.reward_wall_weight * contacts
-        info["reward_proximity"] = -self.reward_proximity_weight * (info["distance"] > self.palm_to_wall_distance(sim))
+        info["reward_wall"] = -self.options.reward_wall_weight * contacts
+        proximity = info["distance"] > self.palm_to_wall_distance(sim)
+        info["reward_proximity"] = -self.options.reward_proximity_weight * proximity
         reward = info["reward_dist"] + info["reward_ctrl"] + info["reward_wall"] + info["reward_proximity"]
         return reward, info
 
     def success(self, sim: SimArrays) -> NDArray[np.bool_]:
-        return (self.distance(sim) < self.success_distance) & ~self.wall_touched
+        return super().success(sim) & ~self.wall_touched
 
     def observe(self, sim: SimArrays) -> NDArray[np.float64]:
         side = np.stack([self.target_side < 0, self.target_side > 0], axis=1).astype(np.float64)
@@ -83,7 +82,7 @@ class WallReacher3DTask(Reacher3DTask):
             if np.linalg.norm(xy) <= 0.1 and abs(xy[0]) >= 0.03:
                 return np.array([xy[0], xy[1], FLOOR_Z + TARGET_HALF_SIZE])
 
-    def sample_start(self, rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    def sample_start(self, rng: np.random.Generator) -> Start:
         mocap_pos = self.default_mocap_pos.copy()
         mocap_pos[0] = target = self.sample_target(rng)
         qpos = self.initial_qpos(rng)
@@ -154,6 +153,9 @@ class WallReacher3DEnv(ArmEnv):
     No termination (except `info["unstable"]`); truncation after 100 steps (`max_episode_steps`).
 
     ## Arguments
+    Keywords only: the options (`WallReacher3DOptions`, checked when the env is made: a bad value raises `ValueError`
+    naming it, an unknown keyword `TypeError`) and Gymnasium's rendering arguments.
+
     | Parameter | Default | Description |
     |-----------|---------|-------------|
     | `xml_file` | `"wall_reacher3d.xml"` | MuJoCo model |
@@ -165,6 +167,7 @@ class WallReacher3DEnv(ArmEnv):
     | `reward_proximity_weight` | `1.0` | weight of `reward_proximity` |
     | `reset_noise_scale` | `0.1` | half-width of the initial joint-angle noise (rad) |
     | `success_distance` | `0.02` | palm-target distance counted as success (m) |
+    | `**kwargs` | | passed on to Gymnasium's `MujocoEnv`: `render_mode`, `width`, `height`, `camera_id`, ... |
 
     ## Version History
     * v0: first release. Differs from the thesis: arm-wall contacts are found by geom name (the original
@@ -173,33 +176,10 @@ class WallReacher3DEnv(ArmEnv):
       reward after the physics step; cos/sin angles; side one-hot and a wall-touched flag observed.
     """
 
-    task: WallReacher3DTask
+    options_class = WallReacher3DOptions
     task_class = WallReacher3DTask
-
-    def __init__(
-        self,
-        xml_file: str = "wall_reacher3d.xml",
-        frame_skip: int = 2,
-        default_camera_config: dict[str, Any] = WALL_CAMERA_CONFIG,
-        reward_dist_weight: float = 1.0,
-        reward_control_weight: float = 1.0,
-        reward_wall_weight: float = 1.0,
-        reward_proximity_weight: float = 1.0,
-        reset_noise_scale: float = 0.1,
-        success_distance: float = 0.02,
-        **kwargs: Any,
-    ):
-        task = WallReacher3DTask(
-            xml_file, frame_skip, reward_dist_weight, reward_control_weight, reward_wall_weight,
-            reward_proximity_weight, reset_noise_scale, success_distance,
-        )  # fmt: skip
-        utils.EzPickle.__init__(
-            self, xml_file=xml_file, frame_skip=frame_skip, default_camera_config=default_camera_config,
-            reward_dist_weight=reward_dist_weight, reward_control_weight=reward_control_weight,
-            reward_wall_weight=reward_wall_weight, reward_proximity_weight=reward_proximity_weight,
-            reset_noise_scale=reset_noise_scale, success_distance=success_distance, **kwargs,
-        )  # fmt: skip
-        ArmEnv.__init__(self, task, default_camera_config, **kwargs)
+    default_camera = WALL_CAMERA_CONFIG
+    task: WallReacher3DTask
 
     def distance(self) -> float:
         return float(self.task.distance(self.sim)[0])

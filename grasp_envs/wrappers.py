@@ -1,16 +1,24 @@
-"""Training aids: wrappers for training envs only, never for evaluation (they change the start-state distribution)."""
+"""Training aids, for training envs only, never for evaluation (they change the start-state distribution).
+
+The scripted starts: ``scripted_starts`` starts simulations along the scripted grasp, with ``ScriptedStartOptions``;
+the ``ScriptedStarts`` wrapper runs it on a Gymnasium env, and the batched engine (``grasp_envs.make_batch_env``) on
+its simulations.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
-from grasp_envs.grasper3d import Grasper3DEnv
-from grasp_envs.scripted import grasper3d_policy
+from grasp_envs.base import Physics, info_of
+from grasp_envs.grasper3d import Grasper3DEnv, Grasper3DTask
+from grasp_envs.options import Options, Rule, amount, is_int, is_number, option
+from grasp_envs.scripted import grasper3d_actions
 
 # Wrappers that pass the Grasper's observations through unchanged, so ScriptedStarts may lie outside them, by name:
 # rl-zoo3 replaces gymnasium.wrappers.TimeLimit by its own subclass when imported (so the class bound to that name
@@ -42,6 +50,63 @@ def changes_observations(wrapper: gym.Wrapper[Any, Any, Any, Any]) -> bool:
     )
 
 
+def _is_step_range(steps: Any) -> bool:
+    return isinstance(steps, tuple | list) and len(steps) == 2 and all(map(is_int, steps)) and 0 <= steps[0] < steps[1]
+
+
+@dataclass(frozen=True)
+class ScriptedStartOptions(Options):
+    """The scripted starts' options (``ScriptedStarts``' arguments), each checked when they are made; ``steps`` is
+    kept as a tuple of two ``int`` and ``probability`` as a ``float``."""
+
+    probability: float = option(0.25, Rule(lambda p: is_number(p) and 0.0 <= p <= 1.0, "a number in [0, 1]"))
+    steps: Sequence[int] = option((0, 100), Rule(_is_step_range, "(low, high) integers with 0 <= low < high"))
+    hold_height: float | None = option(None, amount(positive=True, optional=True))
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        object.__setattr__(self, "probability", float(self.probability))
+        object.__setattr__(self, "steps", (int(self.steps[0]), int(self.steps[1])))
+
+
+def scripted_starts(
+    physics: Physics, ids: NDArray[np.int64], rngs: Sequence[np.random.Generator], options: ScriptedStartOptions
+) -> NDArray[np.bool_]:
+    """Start each of the just-reset Grasper simulations ``ids`` somewhere along the scripted grasp, with probability
+    ``options.probability``; return which did.
+
+    Each simulation draws from its own generator (``rngs``, one per id): whether it starts along the grasp, then
+    the number of scripted steps, uniform in ``[steps[0], steps[1])``. The chosen ones are stepped together with the
+    scripted grasp's actions (``grasp_envs.scripted.grasper3d_actions``, holding the cube at ``hold_height``), each
+    for its own number of steps; one that a scripted step made unstable starts instead from a fresh draw of the
+    task's start state, with no scripted steps after it. With ``probability`` 0 nothing is drawn.
+    """
+    task = physics.task
+    assert isinstance(task, Grasper3DTask), "scripted starts run the Grasper's scripted grasp"
+    chosen = np.zeros(len(ids), dtype=bool)
+    if options.probability == 0:
+        return chosen
+    remaining = np.zeros(physics.n, dtype=np.int64)
+    low_steps, high_steps = options.steps
+    for k, (i, rng) in enumerate(zip(ids, rngs, strict=True)):
+        if rng.uniform() < options.probability:
+            chosen[k] = True
+            remaining[i] = rng.integers(low_steps, high_steps)
+    generators = dict(zip(ids.tolist(), rngs, strict=True))
+    low, high = physics.action_space.low, physics.action_space.high
+    while (active := np.flatnonzero(remaining > 0)).size:
+        every = active.size == physics.n  # then step the simulations' own arrays, not a copy of theirs
+        sim = physics.sim if every else physics.sim.take(active)
+        actions = grasper3d_actions(task, sim, low, high, hold_height=options.hold_height)
+        unstable = physics.simulate(np.clip(actions.astype(np.float64), low, high), None if every else active, sim)
+        remaining[active] -= 1
+        if unstable.any():
+            fresh = active[unstable]
+            remaining[fresh] = 0
+            physics.start(fresh, [generators[i] for i in fresh.tolist()])
+    return chosen
+
+
 class ScriptedStarts(
     gym.Wrapper[NDArray[np.float64], NDArray[np.float32], NDArray[np.float64], NDArray[np.float32]],
     gym.utils.RecordConstructorArgs,
@@ -58,19 +123,21 @@ class ScriptedStarts(
     no time-limit step, nothing seen by the wrappers inside). ``hold_height``: the scripted grasp holds the cube with
     its bottom that high (m) instead of raising it until the arm runs out of reach.
 
-    The episode's first observation is then the Grasper's own (``_get_obs``), and its info the inner reset's with
+    The episode's first observation is then the Grasper's own, and its info the inner reset's with
     ``is_success`` and ``unstable`` of the new state: so every wrapper between this one and the Grasper must leave
     observations unchanged (Gymnasium's ``TimeLimit``, ``OrderEnforcing``, ``PassiveEnvChecker``,
     ``RecordEpisodeStatistics``, rl-zoo3's ``TimeLimit``, SB3's ``Monitor``, action and reward wrappers); any other
     raises ``TypeError``: apply it outside ``ScriptedStarts``.
 
     If a scripted step makes the simulation unstable (MuJoCo resets a diverging state), the episode starts instead
-    from a fresh draw of the task's start state (the Grasper's ``reset_model``, its generator going on from where the
-    scripted start left it; ``info["unstable"]`` is ``False``), with no scripted steps after it.
+    from a fresh draw of the task's start state (its generator going on from where the scripted start left it;
+    ``info["unstable"]`` is ``False``), with no scripted steps after it. The batched engine runs the same scripted
+    starts (``scripted_starts``) for its simulations: ``make_batch_env(..., wrapper_class=ScriptedStarts)``.
 
     Random numbers come from the env's own generator, and only when ``probability > 0``, so a seeded reset is
     reproducible. Wrap training envs only (in rl-zoo YAML: ``env_wrapper``; the ``trpo-plus`` command leaves
-    ``training_only`` wrappers out of its evaluation and enjoy envs). The arguments are recorded
+    ``training_only`` wrappers out of its evaluation and enjoy envs). The arguments are checked
+    (``ScriptedStartOptions``: a bad value raises ``ValueError`` naming it) and recorded
     (``env.spec.additional_wrappers``).
 
     :param env: a Grasper3D env (``gymnasium.make("Grasper3D-v7")``), with or without the wrappers above
@@ -100,43 +167,27 @@ class ScriptedStarts(
                     f"outside ScriptedStarts"
                 )
             inner = inner.env
-        checked = self.check_arguments(probability, steps, hold_height)
-        self.probability, self.steps, self.hold_height = checked["probability"], checked["steps"], checked["hold_height"]
-        gym.utils.RecordConstructorArgs.__init__(
-            self, probability=self.probability, steps=self.steps, hold_height=self.hold_height
-        )
+        self.start_options = ScriptedStartOptions(probability, steps, hold_height)
+        gym.utils.RecordConstructorArgs.__init__(self, **self.start_options.keywords())
 
-    @staticmethod
-    def check_arguments(
-        probability: float = 0.25, steps: Sequence[int] = (0, 100), hold_height: float | None = None
-    ) -> dict[str, Any]:
-        """The arguments checked and normalised (``ValueError`` naming a bad one); the batched engine runs them too."""
-        if isinstance(probability, bool) or not isinstance(probability, int | float) or not 0.0 <= probability <= 1.0:
-            raise ValueError(f"ScriptedStarts probability must be a number in [0, 1], got {probability!r}")
-        bounds = tuple(steps) if isinstance(steps, tuple | list) else ()
-        if not (
-            len(bounds) == 2
-            and all(isinstance(n, int | np.integer) and not isinstance(n, bool) for n in bounds)
-            and 0 <= bounds[0] < bounds[1]
-        ):
-            raise ValueError(f"ScriptedStarts steps must be (low, high) integers with 0 <= low < high, got {steps!r}")
-        if hold_height is not None and (
-            isinstance(hold_height, bool)
-            or not isinstance(hold_height, int | float | np.integer | np.floating)
-            or not hold_height > 0
-        ):
-            raise ValueError(f"ScriptedStarts hold_height must be None or a positive height (m), got {hold_height!r}")
-        return {"probability": float(probability), "steps": (int(bounds[0]), int(bounds[1])), "hold_height": hold_height}
+    @property
+    def probability(self) -> float:
+        return self.start_options.probability
+
+    @property
+    def steps(self) -> tuple[int, ...]:
+        return tuple(self.start_options.steps)
+
+    @property
+    def hold_height(self) -> float | None:
+        return self.start_options.hold_height
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[NDArray[np.float64], dict[str, Any]]:
         observation, info = self.env.reset(seed=seed, options=options)
         grasper: Grasper3DEnv = self.env.unwrapped  # type: ignore[assignment]
-        if self.probability > 0 and grasper.np_random.uniform() < self.probability:
-            for _ in range(int(grasper.np_random.integers(*self.steps))):
-                action = grasper3d_policy(grasper, hold_height=self.hold_height)
-                if grasper._simulate(grasper._checked_action(action)):  # unstable: start from a fresh state instead
-                    return grasper.reset_model(), {**info, **grasper._get_reset_info()}
-            observation, info = grasper._get_obs(), {**info, **grasper._get_reset_info()}
+        if scripted_starts(grasper.physics, np.zeros(1, dtype=np.int64), [grasper.np_random], self.start_options)[0]:
+            sim = grasper.physics.sim
+            observation, info = grasper.task.observe(sim)[0], {**info, **info_of(grasper.task.reset_info(sim), 0)}
         return observation, info
