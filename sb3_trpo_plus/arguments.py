@@ -8,36 +8,22 @@ or tuples of ``str``, never one ``str``; ``None`` only where the argument's defa
 
 from __future__ import annotations
 
-import math
 import types
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
-import numpy as np
+# the primitives are grasp_envs' (the options of its tasks follow the same rules)
+from grasp_envs.options import Rule, integer, is_int, is_keywords, is_names
+from grasp_envs.options import is_number as is_finite_number
 
-
-class Rule(NamedTuple):
-    """What one argument accepts, and that requirement in words (as the error message states it)."""
-
-    accepts: Callable[[Any], bool]
-    requirement: str
+__all__ = [
+    "Rule", "boolean", "check_arguments", "choice", "integer", "is_bool", "is_finite_number", "is_int", "is_keywords",
+    "is_names", "is_schedule", "keywords", "names", "number", "optional",
+]  # fmt: skip
 
 
 def is_bool(value: Any) -> bool:
     return isinstance(value, bool)
-
-
-def is_int(value: Any) -> bool:
-    return isinstance(value, int | np.integer) and not isinstance(value, bool)
-
-
-def is_finite_number(value: Any) -> bool:
-    if not isinstance(value, int | float | np.integer | np.floating) or isinstance(value, bool):
-        return False
-    try:
-        return math.isfinite(value)
-    except OverflowError:  # an int beyond float's range
-        return False
 
 
 def is_schedule(value: Any) -> bool:
@@ -45,26 +31,8 @@ def is_schedule(value: Any) -> bool:
     return callable(value) and not isinstance(value, type)
 
 
-def is_names(value: Any) -> bool:
-    """A list or tuple of ``str`` (one ``str`` is a sequence of characters, not of names)."""
-    return isinstance(value, list | tuple) and all(isinstance(item, str) for item in value)
-
-
-def is_keywords(value: Any) -> bool:
-    """A dict that can be passed as ``**value``: its keys are ``str``."""
-    return isinstance(value, dict) and all(isinstance(key, str) for key in value)
-
-
 def boolean() -> Rule:
     return Rule(is_bool, "a bool (True or False)")
-
-
-def integer(minimum: int, *, optional: bool = False) -> Rule:
-    """An integer >= ``minimum``; or None, where ``optional``."""
-    return Rule(
-        lambda value: (optional and value is None) or (is_int(value) and value >= minimum),
-        ("None or " if optional else "") + f"an integer >= {minimum}",
-    )
 
 
 def number(condition: Callable[[float], bool], text: str, *, schedule: bool = False, optional: bool = False) -> Rule:
