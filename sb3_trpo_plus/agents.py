@@ -499,7 +499,6 @@ def make_eval_env(
     env wrappers without training aids, VecEnv wrapper and frame stacking, with the VecNormalize statistics frozen
     (``normalization``: read by :func:`load_normalization`, or a VecNormalize unpickled by the trusted path).
     """
-    import grasp_envs  # noqa: F401  (registers our ids)
     from sb3_trpo_plus.evaluation import evaluation_env
 
     where = config.stats_dir / "config.yml"

@@ -194,8 +194,6 @@ def enjoy(argv: Sequence[str]) -> dict[str, Any]:
 
     import torch as th
 
-    import grasp_envs  # noqa: F401
-
     for package in args.gym_packages:
         importlib.import_module(package)
     if args.num_threads > 0:

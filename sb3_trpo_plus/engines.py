@@ -28,6 +28,30 @@ def batch_engine_ids() -> tuple[str, ...]:
     return tuple(grasp_envs.ENV_IDS)
 
 
+def scripted_starts_options(wrapper_class: Any, flag: str) -> dict[str, Any] | None:
+    """The ``ScriptedStarts`` options in rl-zoo3's ``env_wrapper`` (a class, or the function that applies a YAML list
+    of them), None without one; any other wrapper raises ``TypeError`` naming it and ``flag``."""
+    import inspect
+
+    from grasp_envs.wrappers import ScriptedStarts
+
+    wrappers: list[tuple[Any, dict[str, Any]]] = []
+    if isinstance(wrapper_class, type):
+        wrappers = [(wrapper_class, {})]
+    elif wrapper_class is not None:  # rl_zoo3.utils.get_wrapper_class's wrap_env(env)
+        cells = inspect.getclosurevars(wrapper_class).nonlocals
+        wrappers = list(zip(cells.get("wrapper_classes", []), cells.get("wrapper_kwargs", []), strict=True))
+        if not wrappers:
+            raise TypeError(f"{flag} cannot read the env_wrapper {wrapper_class!r}")
+    others = [getattr(cls, "__name__", str(cls)) for cls, _ in wrappers if cls is not ScriptedStarts]
+    if others or len(wrappers) > 1:
+        raise TypeError(
+            f"{flag} runs no per-env Gymnasium wrappers but ScriptedStarts (once); the env_wrapper has "
+            f"{', '.join(others) or 'ScriptedStarts twice'}: use --vec-env dummy"
+        )
+    return dict(wrappers[0][1]) if wrappers else None
+
+
 def batch_envs(
     env_id: str,
     n_envs: int,

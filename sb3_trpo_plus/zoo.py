@@ -149,8 +149,6 @@ def load_hyperparameters(path: str | Path, algo: str, env_ids: list[str] | None 
         raise HyperparameterError(f"{path}: malformed YAML: {error}") from None
     if not isinstance(data, dict):
         raise HyperparameterError(f"{path}: expected a mapping of env ids to hyperparameters")
-    import grasp_envs  # noqa: F401  (our ids must be known)
-
     accepted = {**_constructor_types(algos[algo]), **ZOO_KEYS}
     result: dict[str, dict[str, Any]] = {}
     for env_id, params in data.items():
@@ -255,9 +253,9 @@ def evaluation_wrappers(value: Any) -> list[Any] | None:
 
 
 def _our_env_ids() -> tuple[str, ...]:
-    import grasp_envs
+    from sb3_trpo_plus.engines import batch_engine_ids
 
-    return grasp_envs.ENV_IDS
+    return batch_engine_ids()
 
 
 def config_module(algo: str, path: str | Path | None = None) -> str:
@@ -299,30 +297,6 @@ def register_in_rl_zoo() -> None:
         HYPERPARAMS_CONVERTER["trpo_plus"] = HYPERPARAMS_CONVERTER["trpo"]
 
 
-def _scripted_starts_of(wrapper_class: Any, flag: str) -> dict[str, Any] | None:
-    """The ``ScriptedStarts`` options in rl-zoo3's ``env_wrapper`` (a class, or the function that applies a YAML list
-    of them), None without one; any other wrapper raises ``TypeError`` naming it and ``flag``."""
-    import inspect
-
-    from grasp_envs.wrappers import ScriptedStarts
-
-    wrappers: list[tuple[Any, dict[str, Any]]] = []
-    if isinstance(wrapper_class, type):
-        wrappers = [(wrapper_class, {})]
-    elif wrapper_class is not None:  # rl_zoo3.utils.get_wrapper_class's wrap_env(env)
-        cells = inspect.getclosurevars(wrapper_class).nonlocals
-        wrappers = list(zip(cells.get("wrapper_classes", []), cells.get("wrapper_kwargs", []), strict=True))
-        if not wrappers:
-            raise TypeError(f"{flag} cannot read the env_wrapper {wrapper_class!r}")
-    others = [getattr(cls, "__name__", str(cls)) for cls, _ in wrappers if cls is not ScriptedStarts]
-    if others or len(wrappers) > 1:
-        raise TypeError(
-            f"{flag} runs no per-env Gymnasium wrappers but ScriptedStarts (once); the env_wrapper has "
-            f"{', '.join(others) or 'ScriptedStarts twice'}: use --vec-env dummy"
-        )
-    return dict(wrappers[0][1]) if wrappers else None
-
-
 def batch_training_env(
     env_id: str,
     *,
@@ -341,11 +315,11 @@ def batch_training_env(
     """
     import os
 
-    from sb3_trpo_plus.engines import batch_envs
+    from sb3_trpo_plus.engines import batch_envs, scripted_starts_options
 
     return batch_envs(
         env_id, n_envs, seed=seed, n_threads=n_threads, env_kwargs=env_kwargs,
-        scripted_starts=_scripted_starts_of(wrapper_class, "--vec-env batch"),
+        scripted_starts=scripted_starts_options(wrapper_class, "--vec-env batch"),
         info_keywords=(monitor_kwargs or {}).get("info_keywords", ()),
         monitor_file=None if monitor_dir is None else os.path.join(monitor_dir, "batch"),
     )  # fmt: skip
@@ -375,6 +349,7 @@ def workers_training_env(
     import os
 
     from sb3_trpo_plus import rollouts
+    from sb3_trpo_plus.engines import scripted_starts_options
 
     if n_envs % num_workers:
         raise ValueError(
@@ -383,7 +358,7 @@ def workers_training_env(
     pool_class = {"inprocess": rollouts.InProcessRollouts, "process": rollouts.ProcessRollouts, "ray": rollouts.RayRollouts}
     return pool_class[backend](
         env_id, num_workers, n_envs // num_workers, seed=seed, sim_threads=n_threads, env_kwargs=env_kwargs,
-        scripted_starts=_scripted_starts_of(wrapper_class, f"--workers {backend}"),
+        scripted_starts=scripted_starts_options(wrapper_class, f"--workers {backend}"),
         info_keywords=(monitor_kwargs or {}).get("info_keywords", ()),
         monitor_file=None if monitor_dir is None else os.path.join(monitor_dir, "workers"),
     )  # fmt: skip
