@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 STUDY_FILE = Path(__file__).resolve().with_name("study.yml")
 ALGOS = ("trpo_plus", "trpo", "ppo")
 VARIANT_KEYS = {"label", "algo", "hyperparameters", "env_kwargs", "train_wrappers", "algo_class", "zero_cg_start"}
-ENV_KEYS = {"budget", "target", "target_within", "target_held", "return_target"}
+ENV_KEYS = {"budget", "target", "target_within", "target_held", "return_target", "zoo"}
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,7 @@ class EnvSettings:
     target_within: int
     target_held: bool = False
     return_target: float | None = None
+    zoo: dict[str, dict[str, Any]] = field(default_factory=dict)  # algo -> the zoo entry the study pins for this env
 
 
 @dataclass(frozen=True)
@@ -133,7 +134,26 @@ def _env_settings(env_id: str, settings: Mapping[str, Any]) -> EnvSettings:
         target_within=int(settings.get("target_within", budget)),
         target_held=bool(settings.get("target_held", False)),
         return_target=float(settings["return_target"]) if "return_target" in settings else None,
+        zoo=_pinned_zoo(env_id, settings.get("zoo") or {}),
     )
+
+
+def _pinned_zoo(env_id: str, entries: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    """study.yml's ``zoo: {algo: {entry}}`` of an env: the zoo entries the study keeps for it, each checked as the
+    zoo files' entries are (``load_hyperparameters``)."""
+    import tempfile
+
+    from sb3_trpo_plus.zoo import load_hyperparameters
+
+    pinned = {}
+    for algo, entry in entries.items():
+        if algo not in ALGOS or not isinstance(entry, Mapping):
+            raise StudyError(f"env {env_id}: zoo maps an algo of {ALGOS} to its entry, got {algo!r}: {entry!r}")
+        with tempfile.TemporaryDirectory() as folder:
+            path = Path(folder) / f"{algo}.yml"
+            path.write_text(yaml.safe_dump({env_id: dict(entry)}))
+            pinned[algo] = dict(load_hyperparameters(path, algo, [env_id])[env_id])
+    return pinned
 
 
 def _variant(name: str, entry: Mapping[str, Any]) -> Variant:
@@ -213,7 +233,11 @@ def hyperparameters(variant: Variant, env_id: str) -> dict[str, Any]:
     the zoo's net_arch, activation, ...; its env_kwargs replace the zoo's)."""
     from sb3_trpo_plus.zoo import load_hyperparameters
 
-    params = dict(load_hyperparameters(ROOT / "zoo_hyperparams" / f"{variant.algo}.yml", variant.algo, [env_id])[env_id])
+    pinned = ENVS[env_id].zoo.get(variant.algo) if env_id in ENVS else None
+    if pinned is not None:  # the zoo entry the study keeps for this env (study.yml's zoo)
+        params = dict(pinned)
+    else:
+        params = dict(load_hyperparameters(ROOT / "zoo_hyperparams" / f"{variant.algo}.yml", variant.algo, [env_id])[env_id])
     for key, value in variant.hyperparameters.items():
         if isinstance(value, TimesZoo):
             if key not in params:

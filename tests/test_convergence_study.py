@@ -64,7 +64,9 @@ def test_the_variants_are_those_the_committed_runs_were_trained_with() -> None:
         assert _as_snapshot(variant) == snapshot["variants"][name], name
     assert snapshot["study_variants"] == study.STUDY_VARIANTS
     for env_id, settings in snapshot["envs"].items():  # the envs of the committed runs, which have a success target
-        assert vars(study.ENVS[env_id]) == {**settings, "return_target": None}
+        pinned = study.ENVS[env_id].zoo  # the zoo entries study.yml pins (Grasper3D-v7's 2M recipe)
+        assert vars(study.ENVS[env_id]) == {**settings, "return_target": None, "zoo": pinned}
+        assert set(pinned) <= ({"trpo_plus"} if env_id == "Grasper3D-v7" else set())
 
 
 def test_every_variant_loads_with_valid_keys_and_types() -> None:
@@ -273,15 +275,18 @@ def test_a_zoo_env_wrapper_that_evaluation_needs_is_refused(monkeypatch: pytest.
     assert study.train_wrappers(VARIANTS["warm_scripted25"], "Grasper3D-v7") == VARIANTS["warm_scripted25"].train_wrappers
 
 
-def test_the_headline_variant_trains_with_the_recommended_graspers_recipe() -> None:
-    """The runs behind the Grasper3D-v7 result (warm_scripted25_late_ready_cg25_g098 on Grasper3D-v6) train with the
-    settings of ``trpo-plus train --env Grasper3D-v7``: zoo_hyperparams/trpo_plus.yml's model hyperparameters, envs,
-    VecNormalize, budget and scripted starts, on an env whose options are the Grasper3D-v7 preset's."""
+def test_the_headline_variant_trains_with_the_pinned_2m_grasper_recipe() -> None:
+    """The runs behind the 2M Grasper3D-v7 result (warm_scripted25_late_ready_cg25_g098 on Grasper3D-v6) train with
+    the 2M recipe that study.yml pins for Grasper3D-v7 (its model hyperparameters, envs, VecNormalize, budget and
+    scripted starts), on an env whose options are the Grasper3D-v7 preset's; the study's Grasper3D-v7 variants start
+    from that entry, not from zoo_hyperparams/trpo_plus.yml's."""
     from grasp_envs.registration import PRESETS
-    from sb3_trpo_plus.recipes import _RUN_KEYS, recipe  # _RUN_KEYS: what make_model keeps from the constructor
+    from sb3_trpo_plus.recipes import _RUN_KEYS  # what make_model keeps from the constructor
 
     variant, env_id = VARIANTS["warm_scripted25_late_ready_cg25_g098"], "Grasper3D-v6"
-    config, entry = study.settings(variant, env_id), recipe("Grasper3D-v7")
+    config, entry = study.settings(variant, env_id), study.ENVS["Grasper3D-v7"].zoo["trpo_plus"]
+    reuse = study.settings(VARIANTS["recipe_generalized_reuse"], "Grasper3D-v7")
+    assert (reuse.n_envs, reuse.kwargs["n_steps"], reuse.kwargs["sample_reuse"]) == (10, 500, "generalized")
     assert variant.algo == "trpo_plus" and builders.algorithm_class(variant.name).__name__ == "TRPOPlus"
     assert config.kwargs == {key: value for key, value in entry.items() if key not in _RUN_KEYS}
     assert (config.n_envs, config.policy, config.normalize_kwargs) == (entry["n_envs"], entry["policy"], {"gamma": 0.98})
