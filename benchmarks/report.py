@@ -484,6 +484,10 @@ def write_report(out: Path, docs: Path, tables_page: Path | None = None) -> None
     print(f"wrote {tables_page}, {images}/results_*.png and {docs}'s generated block")
 
 
+RECIPE = "recipe"
+"""An agents.json entry's ``variant`` for an agent trained by ``trpo-plus train`` with the zoo YAML's recipe."""
+
+
 def agents_section(manifest_path: Path) -> list[str]:
     """Table of the shipped agents (tests/test_trained_agents.py checks each row against a fresh evaluation)."""
     if not manifest_path.exists():
@@ -510,9 +514,12 @@ def agents_section(manifest_path: Path) -> list[str]:
         video = f"[mp4]({entry['video']})" if "video" in entry else "—"
         kwargs = ", ".join(f"`{key}={value!r}`" for key, value in entry.get("env_kwargs", {}).items()) or "—"
         again = (f" {entry[more]:.2f} |" if more in entry else " — |") if counts else ""
-        label = LABELS[entry["variant"]]
-        if env_id == RECOMMENDED_GRASPER and not entry.get("env_kwargs"):
-            label = f"the recipe of `zoo_hyperparams/trpo_plus.yml` ({label})"
+        if entry["variant"] == RECIPE:  # trained by `trpo-plus train` with the YAML's recipe, not a study variant
+            label = f"the recipe of `zoo_hyperparams/trpo_plus.yml` (`trpo-plus train --env {env_id}`)"
+        else:
+            label = LABELS[entry["variant"]]
+            if env_id == RECOMMENDED_GRASPER and not entry.get("env_kwargs"):
+                label = f"the recipe of `zoo_hyperparams/trpo_plus.yml` ({label})"
         lines.append(
             f"| `{env_id}` | {kwargs} | {label} | {entry['seed']} | {entry['timesteps']:,} | "
             f"{entry['success_rate']:.2f} | {entry['mean_reward']:.2f} |{again} {video} |"
@@ -521,10 +528,15 @@ def agents_section(manifest_path: Path) -> list[str]:
         if "held_out" in entry:  # episodes that played no part in picking the agent
             held_out = entry["held_out"]
             lifted = round(held_out["success_rate"] * held_out["episodes"])
+            origin = (
+                f"`{env_id}`'s agent is the one run of `trpo-plus train --env {env_id} --seed {entry['seed']}`."
+                if entry["variant"] == RECIPE
+                else f"`{env_id}`'s agent is seed {entry['seed']} of its variant's runs, picked by the"
+                f" {REEVALUATION_EPISODES}-episode evaluation above."
+            )
             lines += [
                 "",
-                f"`{env_id}`'s agent is seed {entry['seed']} of its variant's runs, picked by the {REEVALUATION_EPISODES}"
-                f"-episode evaluation above. On {held_out['episodes']} further episodes that played no part in picking"
+                f"{origin} On {held_out['episodes']} further episodes that played no part in picking"
                 f" it (reset seeds from {held_out['eval_seed']:,}) it succeeds {lifted} times"
                 f" ({held_out['success_rate']:.3f}).",
             ]

@@ -33,7 +33,7 @@ def test_recommended_grasper_yaml_is_the_shipped_agents_config() -> None:
     assert config == entry
     saved = read_model_data(AGENT / f"{RECOMMENDED_GRASPER}.zip")
     algorithm_keys = {"n_steps", "batch_size", "gamma", "gae_lambda", "cg_max_steps", "cg_damping", "n_critic_updates",
-                      "replay_memory", "cg_warm_start"}  # fmt: skip
+                      "replay_memory", "cg_warm_start", "sample_reuse", "reuse_batches", "fisher_sub_sampling"}  # fmt: skip
     assert algorithm_keys <= set(entry)
     for key in algorithm_keys:
         assert saved[key] == entry[key], key
