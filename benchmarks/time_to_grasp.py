@@ -10,7 +10,9 @@ from the start of ``learn``. Every ``--eval-every`` env steps it pauses the cloc
 policy on ``--eval-episodes`` held-out episodes of the env as registered (no training aids; env ``i`` reset with
 seed ``1,000,000 + i``, the same episodes at every evaluation, the training ``VecNormalize`` statistics frozen),
 then trains on until ``--budget`` seconds of training wall-clock have passed. The evaluation's own time is
-recorded beside, never counted. One CSV per run: ``<out>/<name>/seed<k>.csv`` (``--name``: default the algorithm).
+recorded beside, never counted. With ``--workers BACKEND:N`` (``make_model``'s rollout workers) a segment the workers
+collect while the learner updates (``overlap_collection``) is waited for on the training clock before each
+evaluation. One CSV per run: ``<out>/<name>/seed<k>.csv`` (``--name``: default the algorithm).
 
 ``report`` prints, per name, the median and every seed's training seconds (and env steps) to the first
 evaluation at or above 0.90, and whether it stays there to the end of the budget; the plot shows success against
@@ -65,9 +67,11 @@ def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any
     import torch as th
 
     from sb3_trpo_plus import make_model
+    from sb3_trpo_plus.rollouts import rollout_workers
 
     th.set_num_threads(1)
-    model = make_model(args.env, algo=algo, seed=seed, sim_threads=args.sim_threads, **overrides)
+    model = make_model(args.env, algo=algo, seed=seed, sim_threads=args.sim_threads, workers=args.workers, **overrides)
+    pool = rollout_workers(model.get_env())  # type: ignore[arg-type]
     folder = args.out / (args.name or algo)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"seed{seed}.csv"
@@ -77,6 +81,8 @@ def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any
     while trained < args.budget:
         start = time.perf_counter()
         model.learn(args.eval_every, reset_num_timesteps=not rows)
+        if pool is not None:  # a segment ordered during the last update is collected on the training clock
+            pool[0].wait_segments()
         trained += time.perf_counter() - start
         start = time.perf_counter()
         success, mean_return = evaluate_held_out(model, args.env, args.eval_episodes, statistics)
@@ -89,7 +95,8 @@ def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any
         writer.writeheader()
         writer.writerows(rows)
     settings = {"env": args.env, "algo": algo, "seed": seed, "budget": args.budget, "eval_every": args.eval_every,
-                "eval_episodes": args.eval_episodes, "sim_threads": args.sim_threads, "overrides": overrides,
+                "eval_episodes": args.eval_episodes, "sim_threads": args.sim_threads, "workers": args.workers,
+                "overrides": overrides,
                 "machine": {"cpu": platform.processor() or platform.machine(), "python": platform.python_version(),
                             "torch": th.__version__}}  # fmt: skip
     (folder / f"seed{seed}.json").write_text(json.dumps(settings, indent=1) + "\n")
@@ -153,6 +160,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--eval-every", type=int, default=50_000)
     parser.add_argument("--eval-episodes", type=int, default=50)
     parser.add_argument("--sim-threads", type=int, default=1)
+    parser.add_argument("--workers", default=None, metavar="BACKEND:N", help="collect with N rollout workers (make_model)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="recipe overrides (YAML values)")
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args(argv)

@@ -91,7 +91,7 @@ def truncated_trace_ratios(
 
 def generalized_batch(
     policy: ActorCriticPolicy,
-    current: RolloutBufferSamples,
+    current: RolloutBufferSamples | None,
     stored: Sequence[Segment],
     evaluate: Callable[[Segment, TraceRatios], RolloutEvaluation],
     settings: ReuseSettings,
@@ -102,14 +102,32 @@ def generalized_batch(
     """The fresh batch ``current`` (as SB3 buffered it) and the ``stored`` segments, newest first, for one generalized
     update: each stored segment evaluated now by ``evaluate`` (current statistics and critic) with off-policy GAE whose
     traces are the current policy's truncated importance ratios; every sample weighted by its batch's age; the policy
-    batch on every ``sub_sampling``-th sample, the critic's on all."""
-    device = current.advantages.device
-    weights = settings.weights.per_sample(1 + len(stored))
-    n_current = len(current.advantages)
-    observations, actions, sampling = [current.observations], [current.actions], [current.old_log_prob]
-    advantages, returns = [current.advantages], [current.returns]
-    sample_weights = [th.full((n_current,), float(weights[0]), device=device)]
-    for age, segment in enumerate(stored, start=1):
+    batch on every ``sub_sampling``-th sample, the critic's on all.
+
+    ``current`` None: the fresh batch is ``stored[0]``, collected by an earlier policy (overlapped collection); it is
+    evaluated as the stored ones are, with the weight of the fresh batch, and no sample counts as on-policy."""
+    weights = settings.weights.per_sample(len(stored) + (current is not None))
+    observations: list[th.Tensor] = []
+    actions: list[th.Tensor] = []
+    sampling: list[th.Tensor] = []
+    advantages: list[th.Tensor] = []
+    returns: list[th.Tensor] = []
+    sample_weights: list[th.Tensor] = []
+    n_current = 0
+    if current is not None:
+        device = current.advantages.device
+        n_current = len(current.advantages)
+        observations.append(current.observations)  # type: ignore[arg-type]
+        actions.append(current.actions)
+        sampling.append(current.old_log_prob)
+        advantages.append(current.advantages)
+        returns.append(current.returns)
+        sample_weights.append(th.full((n_current,), float(weights[0]), device=device))
+    else:
+        if not stored:
+            raise ValueError("generalized_batch: without a fresh batch `current`, `stored` must hold the fresh segment")
+        device = policy.device
+    for age, segment in enumerate(stored, start=len(sample_weights)):
         as_buffered = segment.actions.reshape(segment.n_samples, -1).astype(np.float32)  # the buffer's actions
         stored_actions = th.as_tensor(as_buffered, device=device)
         behaviour = th.as_tensor(segment.log_probs.reshape(-1), device=device)
@@ -134,7 +152,7 @@ def generalized_batch(
     )  # fmt: skip
     return ReusedBatch(
         batch=batch, critic_observations=all_observations, critic_returns=th.cat(returns), critic_weights=all_weights,
-        n_batches=1 + len(stored), radius=reuse_radius(target_kl, settings.weights.trust_scale, spent, settings.kl_vary),
+        n_batches=len(sample_weights), radius=reuse_radius(target_kl, settings.weights.trust_scale, spent, settings.kl_vary),
         offpolicy_tv=spent / 2.0,
     )  # fmt: skip
 

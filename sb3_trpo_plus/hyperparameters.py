@@ -77,6 +77,7 @@ HYPERPARAMETER_RULES: dict[str, Rule] = {
     "reuse_max_batches": integer(1),
     "reuse_trace_clip": number(lambda x: x > 0, "> 0"),
     "reuse_kl_vary": boolean(),
+    "overlap_collection": boolean(),
     "replay_is_clip": number(lambda x: x > 0, "> 0", optional=True),
     "replay_critic": boolean(),
     "cg_warm_start": boolean(),

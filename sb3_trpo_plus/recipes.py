@@ -46,6 +46,7 @@ def make_model(
     *,
     vec_env: str = "auto",
     sim_threads: int = 1,
+    workers: str | None = None,
     **overrides: Any,
 ) -> OnPolicyAlgorithm:
     """The model of ``env_id``'s recipe, as ``trpo-plus train`` builds it: ``n_envs`` seeded envs with the recipe's
@@ -55,7 +56,10 @@ def make_model(
 
     The envs: ``vec_env="auto"`` (the default) steps the tasks of ``grasp_envs`` on the batched engine
     (``grasp_envs.make_batch_env``, physics on ``sim_threads`` threads: the transitions of ``DummyVecEnv``, faster)
-    and any other id in SB3's ``DummyVecEnv``; ``"batch"`` or ``"dummy"`` choose one.
+    and any other id in SB3's ``DummyVecEnv``; ``"batch"`` or ``"dummy"`` choose one. ``workers="BACKEND:N"``
+    (``inprocess``, ``process`` or ``ray``, as ``trpo-plus train --workers``) collects with ``N`` rollout workers
+    instead (``sb3_trpo_plus.rollouts``), the recipe's ``n_envs`` split over them, each worker's physics on
+    ``sim_threads`` threads.
 
     ``overrides`` replace any key of the recipe, run keys (``n_envs``, ``env_kwargs``, ``normalize``, ...) and
     constructor arguments alike (e.g. ``tensorboard_log="runs"``). Train for the recipe's budget with
@@ -73,7 +77,9 @@ def make_model(
         raise ValueError(f"vec_env='batch' runs the tasks of grasp_envs ({', '.join(batch_engine_ids())}), got {env_id!r}")
     params = {**recipe(env_id, algo), **overrides}
     env: Any
-    if vec_env == "batch" or (vec_env == "auto" and has_batch_engine(env_id)):
+    if workers is not None:
+        env = _rollout_workers(env_id, algo, workers, params, seed, sim_threads, vec_env)
+    elif vec_env == "batch" or (vec_env == "auto" and has_batch_engine(env_id)):
         env = batch_envs(
             env_id, int(params.get("n_envs", 1)), seed=seed, n_threads=sim_threads, env_kwargs=params.get("env_kwargs"),
             scripted_starts=_scripted_starts(params.get("env_wrapper")),
@@ -101,6 +107,27 @@ def make_model(
     if params.get("frame_stack"):
         env = VecFrameStack(env, int(params["frame_stack"]))
     return algorithms()[algo](params["policy"], env, seed=seed, **constructor)
+
+
+def _rollout_workers(
+    env_id: str, algo: str, workers: str, params: dict[str, Any], seed: int | None, sim_threads: int, vec_env: str
+) -> Any:
+    """The recipe's training envs as a pool of rollout workers (``workers="BACKEND:N"``)."""
+    from sb3_trpo_plus import rollouts
+    from sb3_trpo_plus.zoo import WORKER_BACKENDS
+
+    backend, _, count = workers.partition(":") if isinstance(workers, str) else ("", "", "")
+    if backend not in WORKER_BACKENDS or not count.isdigit() or int(count) < 1:
+        raise ValueError(f"workers must be 'BACKEND:N' with BACKEND one of {WORKER_BACKENDS} and N >= 1, got {workers!r}")
+    if algo != "trpo_plus":
+        raise ValueError(f"workers collect whole segments for algo='trpo_plus' only, got algo={algo!r}")
+    if vec_env != "auto":
+        raise ValueError(f"workers collect with their own envs; vec_env={vec_env!r} does not apply")
+    return rollouts.split_pool(
+        backend, env_id, int(params.get("n_envs", 1)), int(count), seed=seed, sim_threads=sim_threads,
+        env_kwargs=params.get("env_kwargs"), scripted_starts=_scripted_starts(params.get("env_wrapper")),
+        info_keywords=(params.get("monitor_kwargs") or {}).get("info_keywords"),
+    )  # fmt: skip
 
 
 def _schedule(key: str, value: Any) -> Any:

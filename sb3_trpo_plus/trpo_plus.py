@@ -121,6 +121,11 @@ class TRPOPlus(TRPO):
     :param reuse_trace_clip: truncation of the importance ratios that carry off-policy GAE's traces (V-trace: 1)
     :param reuse_kl_vary: the generalized radius ``epsilon = sqrt(2 target_kl)`` less the weighted mean
         ``|pi_k / q - 1|`` the old batches already spent (GeTRPO's ``eps_vary``), instead of the ``1 / B`` scaling
+    :param overlap_collection: the rollout workers collect the next segment while the learner updates (both run at
+        once): each segment is collected with the weights from before the last update, one update behind, and the
+        generalized update treats it as off-policy data (importance ratios against the behaviour log-probabilities
+        it recorded, off-policy GAE, the radius as for the stored batches). Needs ``sample_reuse="generalized"`` and
+        an env that is a pool of rollout workers (``sb3_trpo_plus.rollouts``, bare or under one ``VecNormalize``)
     :param replay_is_clip: Truncate the importance weights ``pi_current / q`` of replayed samples at this
         value (``None``: no truncation). Their effective sample size is logged as ``train/replay_ess``.
     :param replay_critic: Also fit the critic on replayed rollouts (default: current rollout only, as the thesis)
@@ -170,6 +175,7 @@ class TRPOPlus(TRPO):
         reuse_max_batches: int = 10,
         reuse_trace_clip: float = 1.0,
         reuse_kl_vary: bool = False,
+        overlap_collection: bool = False,
         replay_is_clip: float | None = None,
         replay_critic: bool = False,
         cg_warm_start: bool = False,
@@ -209,6 +215,12 @@ class TRPOPlus(TRPO):
         self.reuse_max_batches = int(reuse_max_batches)
         self.reuse_trace_clip = float(reuse_trace_clip)
         self.reuse_kl_vary = reuse_kl_vary
+        if overlap_collection and sample_reuse != "generalized":
+            raise ValueError(
+                "TRPOPlus: overlap_collection=True learns from segments one update old; it needs "
+                f"sample_reuse='generalized' to correct for that, got sample_reuse={sample_reuse!r}"
+            )
+        self.overlap_collection = overlap_collection
         if sample_reuse == "generalized":
             conflicts = {"replay_memory": replay_memory > 0, "value_baseline='linear'": value_baseline == "linear",
                          "replay_critic": replay_critic, "replay_is_clip": replay_is_clip is not None}  # fmt: skip
@@ -311,6 +323,11 @@ class TRPOPlus(TRPO):
                 "(no segments, no restarts); wrap them with one VecNormalize at most to collect whole segments",
                 stacklevel=2,
             )
+        if pool is None and self.overlap_collection:
+            raise ValueError(
+                "TRPOPlus: overlap_collection=True collects on rollout workers while the learner updates; the env is "
+                f"{type(env).__name__}, not a pool of sb3_trpo_plus.rollouts (bare or under one VecNormalize)"
+            )
         if pool is not None and self.use_sde:
             raise ValueError("rollout workers sample without gSDE: use_sde=True needs a VecEnv stepped by the learner")
         self.policy.set_training_mode(False)
@@ -372,8 +389,12 @@ class TRPOPlus(TRPO):
         ``log_probs``; ``infos`` hold the dicts of the episodes that ended, ``{}`` for the others) and the episode
         statistics are kept (None: the callback stopped training).
         """
+        if self.overlap_collection and pool.collecting:  # ordered before the last update
+            segments = pool.gather_segments()
+        else:
+            segments = pool.collect_segments(self.policy, n_rollout_steps, self.gamma, NormalizationStats.of(vec_normalize))
+        segment = Segment.concatenate(segments)
         normalizer = NormalizationStats.of(vec_normalize)
-        segment = Segment.concatenate(pool.collect_segments(self.policy, n_rollout_steps, self.gamma, normalizer))
         n_envs = pool.num_envs
         raw_observations, observations = segment.raw_observations, segment.observations
         assert isinstance(raw_observations, np.ndarray) and isinstance(observations, np.ndarray)
@@ -404,6 +425,8 @@ class TRPOPlus(TRPO):
             self._update_info_buffer(infos, dones)
             pool.record_episodes(segment.ended[t])
         self._log_workers(pool, n_rollout_steps)
+        if self.overlap_collection:  # the next segment, with these weights and statistics, while train() updates
+            pool.submit_segments(self.policy, n_rollout_steps, self.gamma, NormalizationStats.of(vec_normalize))
         return segment
 
     def _log_workers(self, pool: RolloutWorkers, n_steps: int) -> None:
@@ -414,6 +437,7 @@ class TRPOPlus(TRPO):
             record(f"workers/worker_{worker}_steps_per_s", n_steps * pool.envs_per_worker / max(seconds, 1e-9))
         record("workers/broadcast_ms", 1e3 * timings["broadcast_s"])
         record("workers/transfer_ms", 1e3 * timings["transfer_s"])
+        record("workers/wait_ms", 1e3 * timings["wait_s"])
         record("workers/collect_steps_per_s", n_steps * pool.num_envs / max(timings["collect_s"], 1e-9))
         record("workers/restarts", sum(pool.restarts))
 
@@ -436,9 +460,13 @@ class TRPOPlus(TRPO):
         if reuse is not None:
             settings = ReuseSettings(reuse, self.reuse_trace_clip, self.reuse_kl_vary)
             stored = list(reversed(self.rollout_memory or []))  # newest first
+            if self.overlap_collection:  # the fresh segment is one update old: evaluated as the stored ones
+                current, stored = None, [segment, *stored]
+            else:
+                current = next(self.rollout_buffer.get(batch_size=None))
             reused = generalized_batch(
-                self.policy, next(self.rollout_buffer.get(batch_size=None)), stored, self._reevaluate, settings,
-                self.current_target_kl, self.action_tensor, self.sub_sampling_factor,
+                self.policy, current, stored, self._reevaluate, settings, self.current_target_kl, self.action_tensor,
+                self.sub_sampling_factor,
             )  # fmt: skip
             batch = reused.batch
             prepared = time.perf_counter()

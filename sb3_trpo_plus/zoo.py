@@ -351,13 +351,8 @@ def workers_training_env(
     from sb3_trpo_plus import rollouts
     from sb3_trpo_plus.engines import scripted_starts_options
 
-    if n_envs % num_workers:
-        raise ValueError(
-            f"--workers {backend}:{num_workers}: the recipe's n_envs={n_envs} does not split over {num_workers} workers"
-        )
-    pool_class = {"inprocess": rollouts.InProcessRollouts, "process": rollouts.ProcessRollouts, "ray": rollouts.RayRollouts}
-    return pool_class[backend](
-        env_id, num_workers, n_envs // num_workers, seed=seed, sim_threads=n_threads, env_kwargs=env_kwargs,
+    return rollouts.split_pool(
+        backend, env_id, n_envs, num_workers, seed=seed, sim_threads=n_threads, env_kwargs=env_kwargs,
         scripted_starts=scripted_starts_options(wrapper_class, f"--workers {backend}"),
         info_keywords=(monitor_kwargs or {}).get("info_keywords", ()),
         monitor_file=None if monitor_dir is None else os.path.join(monitor_dir, "workers"),

@@ -90,6 +90,7 @@ TABLE: dict[str, Row] = {
     "reuse_max_batches": Row([1, 10], [0, -1, *NOT_INT]),
     "reuse_trace_clip": Row([1.0, 0.5, 2], [0.0, -1.0, *NOT_NUMBER]),
     "reuse_kl_vary": Row([False, True], NOT_BOOL),
+    "overlap_collection": Row([False], NOT_BOOL),
     "replay_is_clip": Row([None, 2.0, 1], [0.0, -1.0, *NOT_NUMBER]),
     "replay_critic": Row([False, True], NOT_BOOL),
     "cg_warm_start": Row([False, True], NOT_BOOL),

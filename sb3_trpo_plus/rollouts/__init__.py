@@ -27,12 +27,14 @@ updates them after every step); the statistics see every raw observation and rew
 
 from sb3_trpo_plus.rollouts.backends import RemoteTraceback
 from sb3_trpo_plus.rollouts.pool import (
+    POOLS,
     InProcessRollouts,
     ProcessRollouts,
     RayRollouts,
     RolloutWorkers,
     buried_rollout_workers,
     rollout_workers,
+    split_pool,
 )
 from sb3_trpo_plus.rollouts.rules import POOL_ARGUMENT_RULES, WORKER_ENVS_RULES
 from sb3_trpo_plus.rollouts.worker import WORKER_ARGUMENT_RULES, RolloutWorker, SegmentOrder, WorkerEnvs
@@ -40,6 +42,7 @@ from sb3_trpo_plus.segment import Segment
 from sb3_trpo_plus.worker_failures import RolloutWorkerError
 
 __all__ = [
+    "POOLS",
     "POOL_ARGUMENT_RULES",
     "WORKER_ARGUMENT_RULES",
     "WORKER_ENVS_RULES",
@@ -55,4 +58,5 @@ __all__ = [
     "WorkerEnvs",
     "buried_rollout_workers",
     "rollout_workers",
+    "split_pool",
 ]

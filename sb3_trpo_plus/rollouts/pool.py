@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import abc
 import contextlib
+import dataclasses
 import importlib
 import io
 import os
@@ -106,6 +107,8 @@ class RolloutWorkers(VecEnv):
         self._blueprint: bytes | None = None
         self._blueprint_of: int | None = None
         self._actions: np.ndarray | None = None
+        self._pending: _PendingSegments | None = None
+        self._arrived: list[Segment] | None = None
         self.last_timings: dict[str, Any] = {}
         self._monitor = None if monitor_file is None else _MonitorWriter(os.fspath(monitor_file), env_id, tuple(info_keywords))
         started: list[int] = []
@@ -179,6 +182,7 @@ class RolloutWorkers(VecEnv):
         return results
 
     def _all(self, method: str, *args: Any) -> list[Any]:
+        self.discard_segments()
         handles = []
         for worker in range(self.num_workers):
             try:
@@ -188,6 +192,7 @@ class RolloutWorkers(VecEnv):
         return self._gather(handles)
 
     def _each(self, method: str, args: Sequence[tuple[Any, ...]]) -> list[Any]:
+        self.discard_segments()
         handles = []
         for worker, worker_args in enumerate(args):
             try:
@@ -214,27 +219,65 @@ class RolloutWorkers(VecEnv):
     ) -> list[Segment]:
         """One segment of ``n_steps`` from every worker, in worker order. A worker that died is restarted (up to
         ``max_restarts`` times) and its segment collected again."""
+        self.submit_segments(policy, n_steps, gamma, normalizer)
+        return self.gather_segments()
+
+    def submit_segments(
+        self, policy: ActorCriticPolicy, n_steps: int, gamma: float, normalizer: NormalizationStats | None
+    ) -> None:
+        """Order one segment of ``n_steps`` from every worker, collected with ``policy``'s weights as they are now, and
+        return at once: the workers collect while the caller goes on (the process and Ray workers in their own
+        processes; the in-process workers collect here, before this returns). :meth:`gather_segments` returns them.
+        Any other use of the pool first waits for the ordered segments and drops them (:meth:`discard_segments`)."""
+        if self.collecting:
+            raise RuntimeError(f"{type(self).__name__}.submit_segments: the segments ordered before were not gathered")
         self._ensure_policy(policy)
         start = time.perf_counter()
         weights = {name: tensor.detach().cpu().clone() for name, tensor in policy.state_dict().items()}
         order = self._backend.share(SegmentOrder(n_steps, float(gamma), weights, normalizer))
         broadcast = time.perf_counter() - start
         handles: dict[int, Any] = {}
-        segments: list[Segment | None] = [None] * self.num_workers
         failure: RolloutWorkerError | None = None
         for worker in range(self.num_workers):
             try:
                 handles[worker] = self._submit_or_restart(worker, "collect", order)
             except RolloutWorkerError as error:
                 failure = failure or error
-        for worker in handles:  # every submitted segment is read, so that no reply is left in a pipe
+        self._pending = _PendingSegments(order, handles, failure, start, broadcast)
+
+    @property
+    def collecting(self) -> bool:
+        """Whether segments were ordered (:meth:`submit_segments`) and not gathered yet."""
+        return self._pending is not None or self._arrived is not None
+
+    def gather_segments(self) -> list[Segment]:
+        """The segments of the last :meth:`submit_segments`, in worker order, once every worker has sent its own; a
+        worker that died meanwhile is restarted (up to ``max_restarts`` times) and collects its segment again."""
+        self.wait_segments()
+        arrived, self._arrived = self._arrived, None
+        if arrived is None:
+            raise RuntimeError(f"{type(self).__name__}.gather_segments: no segments were ordered (submit_segments)")
+        return arrived
+
+    def wait_segments(self) -> None:
+        """Wait until the segments ordered have arrived, and keep them for :meth:`gather_segments` (e.g. so that time
+        spent collecting them is not hidden in what the caller does next). Nothing ordered: nothing to do."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            self._arrived = self._receive(pending)
+
+    def _receive(self, pending: _PendingSegments) -> list[Segment]:
+        waiting = time.perf_counter()
+        segments: list[Segment | None] = [None] * self.num_workers
+        failure = pending.failure
+        for worker in pending.handles:  # every submitted segment is read, so that no reply is left in a pipe
             while segments[worker] is None:
                 try:
-                    segments[worker] = self._backend.result(worker, handles[worker])
+                    segments[worker] = self._backend.result(worker, pending.handles[worker])
                 except _WorkerDied as error:
                     try:
                         self._restart(worker, error)
-                        handles[worker] = self._submit_or_restart(worker, "collect", order)
+                        pending.handles[worker] = self._submit_or_restart(worker, "collect", pending.order)
                     except RolloutWorkerError as final:
                         failure = failure or final
                         break
@@ -243,18 +286,26 @@ class RolloutWorkers(VecEnv):
                     break
         if failure is not None:
             raise failure
-        wall = time.perf_counter() - start
+        end = time.perf_counter()
+        wall = end - pending.start
         done = [segment for segment in segments if segment is not None]
         for worker, segment in enumerate(done):
             segment.restarted = np.full(self.envs_per_worker, worker in self._fresh)
         self._fresh.clear()
         self.last_timings = {
-            "broadcast_s": broadcast,
-            "collect_s": wall - broadcast,
+            "broadcast_s": pending.broadcast,
+            "collect_s": wall - pending.broadcast,
+            "wait_s": end - waiting,
             "worker_s": [segment.seconds for segment in done],
-            "transfer_s": max(wall - broadcast - max(segment.seconds for segment in done), 0.0),
+            "transfer_s": max(wall - pending.broadcast - max(segment.seconds for segment in done), 0.0),
         }
         return done
+
+    def discard_segments(self) -> None:
+        """Wait for the segments ordered and not gathered, and drop them (their envs have moved on: the next segment
+        starts where they ended). Nothing ordered: nothing to do."""
+        self.wait_segments()
+        self._arrived = None
 
     def _submit_or_restart(self, worker: int, method: str, *args: Any) -> Any:
         while True:
@@ -340,6 +391,7 @@ class RolloutWorkers(VecEnv):
         if self.closed:
             return
         self.closed = True
+        self._pending = self._arrived = None  # stopping a worker drops what it was collecting
         for worker in range(self.num_workers):
             self._backend.stop(worker)
         if self._monitor is not None:
@@ -361,6 +413,7 @@ class RolloutWorkers(VecEnv):
 
     def _ask(self, command: str, indices: VecEnvIndices, *args: Any) -> list[Any]:
         routes = self._route(indices)
+        self.discard_segments()
         handles = []
         for worker, local in routes:
             handles.append((worker, self._backend.submit(worker, "call", command, (*args, local))))
@@ -375,6 +428,7 @@ class RolloutWorkers(VecEnv):
     def env_method(
         self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
     ) -> list[Any]:
+        self.discard_segments()
         handles = [
             (
                 worker,
@@ -459,6 +513,20 @@ class RayRollouts(RolloutWorkers):
         return _RayBackend(self._cpus_per_worker, self._placement_timeout)
 
 
+POOLS: dict[str, type[RolloutWorkers]] = {"inprocess": InProcessRollouts, "process": ProcessRollouts, "ray": RayRollouts}
+"""The pool class of each backend name (``trpo-plus train --workers BACKEND:N``)."""
+
+
+def split_pool(backend: str, env_id: str, n_envs: int, num_workers: int, **kwargs: Any) -> RolloutWorkers:
+    """``n_envs`` envs of ``env_id`` split evenly over ``num_workers`` workers of ``backend`` (a key of :data:`POOLS`);
+    ``kwargs`` go to the pool. ``ValueError`` names a backend that does not exist or ``n_envs`` that does not split."""
+    if backend not in POOLS:
+        raise ValueError(f"rollout worker backend must be one of {tuple(POOLS)}, got {backend!r}")
+    if n_envs % num_workers:
+        raise ValueError(f"{backend}:{num_workers}: the recipe's n_envs={n_envs} does not split over {num_workers} workers")
+    return POOLS[backend](env_id, num_workers, n_envs // num_workers, **kwargs)
+
+
 def _cpu_copy(policy: ActorCriticPolicy) -> ActorCriticPolicy:
     """A CPU copy of ``policy`` without its optimizer (workers only sample)."""
     import copy
@@ -470,6 +538,17 @@ def _cpu_copy(policy: ActorCriticPolicy) -> ActorCriticPolicy:
     finally:
         policy.optimizer = optimizer  # type: ignore[assignment]
     return clone.to("cpu")
+
+
+@dataclasses.dataclass
+class _PendingSegments:
+    """Segments ordered from the workers and not gathered yet."""
+
+    order: Any
+    handles: dict[int, Any]
+    failure: RolloutWorkerError | None
+    start: float
+    broadcast: float
 
 
 class _MonitorWriter:
