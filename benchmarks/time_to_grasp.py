@@ -10,9 +10,10 @@ from the start of ``learn``. Every ``--eval-every`` env steps it pauses the cloc
 policy on ``--eval-episodes`` held-out episodes of the env as registered (no training aids; env ``i`` reset with
 seed ``1,000,000 + i``, the same episodes at every evaluation, the training ``VecNormalize`` statistics frozen),
 then trains on until ``--budget`` seconds of training wall-clock have passed. The evaluation's own time is
-recorded beside, never counted. With ``--workers BACKEND:N`` (``make_model``'s rollout workers) a segment the workers
-collect while the learner updates (``overlap_collection``) is waited for on the training clock before each
-evaluation. One CSV per run: ``<out>/<name>/seed<k>.csv`` (``--name``: default the algorithm).
+recorded beside, never counted. With rollout workers (the recipe's ``rollout_workers``, or ``--workers BACKEND:N``
+as ``make_model``'s) a segment the workers collect while the learner updates (``overlap_collection``) is waited for
+on the training clock before each evaluation; ``--set rollout_workers=null overlap_collection=false`` trains the
+recipe on the learner's own batched envs. One CSV per run: ``<out>/<name>/seed<k>.csv`` (``--name``: default the algorithm).
 
 ``report`` prints, per name, the median and every seed's training seconds (and env steps) to the first
 evaluation at or above 0.90, and whether it stays there to the end of the budget; the plot shows success against
@@ -66,7 +67,7 @@ def evaluate_held_out(model: Any, env_id: str, episodes: int, statistics: Any) -
 def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any]) -> Path:
     import torch as th
 
-    from sb3_trpo_plus import make_model
+    from sb3_trpo_plus import make_model, recipe
     from sb3_trpo_plus.rollouts import rollout_workers
 
     th.set_num_threads(1)
@@ -95,7 +96,8 @@ def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any
         writer.writeheader()
         writer.writerows(rows)
     settings = {"env": args.env, "algo": algo, "seed": seed, "budget": args.budget, "eval_every": args.eval_every,
-                "eval_episodes": args.eval_episodes, "sim_threads": args.sim_threads, "workers": args.workers,
+                "eval_episodes": args.eval_episodes, "sim_threads": args.sim_threads,
+                "workers": args.workers or {**recipe(args.env, algo), **overrides}.get("rollout_workers"),
                 "overrides": overrides,
                 "machine": {"cpu": platform.processor() or platform.machine(), "python": platform.python_version(),
                             "torch": th.__version__}}  # fmt: skip

@@ -56,14 +56,12 @@ def _zoo_argv(algo: str, env: str, rest: Sequence[str]) -> list[str]:
 
 def _workers_option(value: str) -> tuple[str, int]:
     """``--workers BACKEND:N`` as ``(backend, N)``."""
-    from sb3_trpo_plus.zoo import WORKER_BACKENDS
+    from sb3_trpo_plus.zoo import parse_workers
 
-    backend, _, count = value.partition(":")
-    if backend not in WORKER_BACKENDS or not count.isdigit() or int(count) < 1:
-        raise argparse.ArgumentTypeError(
-            f"expected BACKEND:N with BACKEND one of {', '.join(WORKER_BACKENDS)} and N >= 1, got {value!r}"
-        )
-    return backend, int(count)
+    try:
+        return parse_workers(value)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def train(argv: Sequence[str]) -> None:
@@ -77,7 +75,8 @@ def train(argv: Sequence[str]) -> None:
     ``--workers ray:8`` collects with 8 Ray workers (``sb3_trpo_plus.rollouts.RayRollouts``; the cluster at
     ``RAY_ADDRESS``, else Ray on this machine), each stepping ``n_envs / 8`` of the recipe's envs; a cluster that
     refuses this process' token stops the command at once with one line naming ``RAY_AUTH_MODE=token`` and the
-    token's file.
+    token's file. A recipe with ``rollout_workers: BACKEND:N`` (Grasper3D-v7's) collects so without ``--workers``;
+    ``--workers`` replaces it, and ``--vec-env`` beside it stops the command naming the conflict.
     """
     parser = argparse.ArgumentParser(prog="trpo-plus train", add_help=False)
     parser.add_argument("--algo", default="trpo_plus", choices=ALGO_CHOICES)
@@ -100,22 +99,14 @@ def train(argv: Sequence[str]) -> None:
     if known.sim_threads < 0:
         parser.error(f"--sim-threads must be >= 0 (0: every CPU), got {known.sim_threads}")
     make: Callable[..., Any] | None = None
+    chosen_vec_env = known.vec_env
     if known.workers is not None:
         if known.vec_env is not None:
             parser.error(f"--workers collects with its own workers' envs; --vec-env {known.vec_env} does not apply")
         if known.algo != "trpo_plus":
             parser.error(f"--workers collects whole segments for trpo_plus only, got --algo {known.algo}")
-        from sb3_trpo_plus.zoo import workers_training_env
-
         backend, count = known.workers
-        if backend == "ray":
-            from sb3_trpo_plus.ray_cluster import RayAuthenticationError, check_cluster_token
-
-            try:
-                check_cluster_token()  # before rl-zoo3 builds anything: one line, not Ray's 20 s of retries
-            except RayAuthenticationError as error:
-                raise SystemExit(f"trpo-plus train --workers ray:{count}: {error}") from None
-        make = functools.partial(workers_training_env, backend=backend, num_workers=count, n_threads=known.sim_threads)
+        make = _workers_factory(backend, count, known.sim_threads)
         known.vec_env = "dummy"
     else:
         if known.vec_env is None:  # the same transitions as dummy, faster from a few envs on
@@ -129,8 +120,43 @@ def train(argv: Sequence[str]) -> None:
             make = functools.partial(batch_training_env, n_threads=known.sim_threads)
         elif known.sim_threads != 1:
             parser.error("--sim-threads sets the physics threads of --vec-env batch or --workers")
+
+    def recipe_workers(value: str) -> Callable[..., Any]:
+        """The training envs of a recipe's ``rollout_workers`` on this command line."""
+        if make is not None and known.workers is not None:
+            return make  # --workers replaces the recipe's
+        if chosen_vec_env is not None:
+            raise SystemExit(
+                f"trpo-plus train: the recipe of {known.env} collects with rollout workers (rollout_workers: {value});"
+                f" --vec-env {chosen_vec_env} does not apply: leave it out, or add"
+                " --hyperparams rollout_workers:None overlap_collection:False"
+            )
+        if known.algo != "trpo_plus":
+            raise SystemExit(f"trpo-plus train: rollout_workers collect whole segments for trpo_plus, not {known.algo}")
+        from sb3_trpo_plus.zoo import parse_workers
+
+        try:
+            return _workers_factory(*parse_workers(value), known.sim_threads)
+        except ValueError as error:
+            raise SystemExit(f"trpo-plus train: rollout_workers: {error}") from None
+
     vec_env = "dummy" if known.vec_env == "batch" else known.vec_env
-    zoo_train(_zoo_argv(known.algo, known.env, [*rest, "--vec-env", vec_env]), make)
+    zoo_train(_zoo_argv(known.algo, known.env, [*rest, "--vec-env", vec_env]), make, recipe_workers)
+
+
+def _workers_factory(backend: str, count: int, sim_threads: int) -> Callable[..., Any]:
+    """The training envs of ``--workers BACKEND:N`` (:func:`sb3_trpo_plus.zoo.workers_training_env`); a Ray cluster
+    that refuses this process' token stops the command with one line."""
+    from sb3_trpo_plus.zoo import workers_training_env
+
+    if backend == "ray":
+        from sb3_trpo_plus.ray_cluster import RayAuthenticationError, check_cluster_token
+
+        try:
+            check_cluster_token()  # before rl-zoo3 builds anything: one line, not Ray's 20 s of retries
+        except RayAuthenticationError as error:
+            raise SystemExit(f"trpo-plus train --workers ray:{count}: {error}") from None
+    return functools.partial(workers_training_env, backend=backend, num_workers=count, n_threads=sim_threads)
 
 
 def _enjoy_parser() -> argparse.ArgumentParser:

@@ -4,8 +4,9 @@ adds to rl-zoo3's training, and :func:`zoo_train` runs rl-zoo3's own ``train`` w
 What the subclass adds, each as an override of the rl-zoo3 method it concerns:
 
 - ``create_envs``: the training envs come from a ``make_vec_env``-like factory where one is given (the batched
-  engine, a pool of rollout workers: :mod:`sb3_trpo_plus.zoo`); evaluation envs get the YAML's ``env_wrapper``
-  without its training aids (:func:`sb3_trpo_plus.zoo.evaluation_wrappers`);
+  engine, a pool of rollout workers: :mod:`sb3_trpo_plus.zoo`; a recipe's ``rollout_workers`` chooses the pool
+  unless the command line chose); evaluation envs get the YAML's ``env_wrapper`` without its training aids
+  (:func:`sb3_trpo_plus.zoo.evaluation_wrappers`);
 - ``learn``: TensorBoard runs under ``<tensorboard-log>/<env>/seed<seed>/<Algorithm>_<n>``, and Ctrl-C stops at the
   next env step (not inside an update) so that the model is saved in the state of its last complete update;
 - ``save_trained_model``: the VecNormalize statistics are written atomically;
@@ -27,28 +28,44 @@ TrainingEnvs = Callable[..., Any]
 """A factory of an rl-zoo3 run's training envs: ``(env_id, *, n_envs, seed, env_kwargs, monitor_dir, wrapper_class,
 monitor_kwargs)`` -> VecEnv, the arguments as rl-zoo3 would give ``make_vec_env`` (``wrapper_class``: the YAML's
 ``env_wrapper``; ``monitor_dir``: None where rl-zoo3 logs no episodes)."""
+RecipeWorkers = Callable[[str], TrainingEnvs]
+"""What a recipe's ``rollout_workers: BACKEND:N`` means for one command line: the factory of the pool's training envs
+(or an error naming the conflict with the command line's own choice)."""
 
 
 class TRPOPlusExperimentManager(ExperimentManager):
     """rl-zoo3's experiment manager with the training habits of ``trpo-plus train`` (module docstring).
 
     ``training_envs`` (a class attribute, set by :meth:`with_training_envs`): the factory of the training envs, None
-    for rl-zoo3's own ``make_vec_env``.
+    for rl-zoo3's own ``make_vec_env``; ``recipe_workers``: the factory for a recipe's ``rollout_workers``, which
+    replaces ``training_envs`` (None: a recipe with ``rollout_workers`` is refused).
     """
 
     training_envs: TrainingEnvs | None = None
+    recipe_workers: RecipeWorkers | None = None
 
     @classmethod
-    def with_training_envs(cls, training_envs: TrainingEnvs | None) -> type[TRPOPlusExperimentManager]:
-        """This manager with its training envs built by ``training_envs`` (rl-zoo3 constructs the manager itself,
-        so the factory travels on a subclass)."""
-        return type(cls.__name__, (cls,), {"training_envs": staticmethod(training_envs) if training_envs else None})
+    def with_training_envs(
+        cls, training_envs: TrainingEnvs | None, recipe_workers: RecipeWorkers | None = None
+    ) -> type[TRPOPlusExperimentManager]:
+        """This manager with its training envs built by ``training_envs``, or by ``recipe_workers`` where the recipe
+        names rollout workers (rl-zoo3 constructs the manager itself, so the factories travel on a subclass)."""
+        attributes = {
+            "training_envs": staticmethod(training_envs) if training_envs else None,
+            "recipe_workers": staticmethod(recipe_workers) if recipe_workers else None,
+        }
+        return type(cls.__name__, (cls,), attributes)
 
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]) -> Any:
         from rl_zoo3.utils import get_wrapper_class
 
         from sb3_trpo_plus.zoo import evaluation_wrappers
 
+        workers = hyperparams.pop("rollout_workers", None)  # ours, not the constructor's
+        if workers is not None:
+            if self.recipe_workers is None:
+                raise ValueError(f"rollout_workers={workers!r}: this command collects with its own envs")
+            self.training_envs = self.recipe_workers(workers)
         self.evaluation_env_wrapper = get_wrapper_class({"env_wrapper": evaluation_wrappers(hyperparams.get("env_wrapper"))})
         return super()._preprocess_hyperparams(hyperparams)
 
@@ -148,10 +165,13 @@ def _zoo_manager(manager: type[ExperimentManager]) -> Iterator[None]:
         zoo_train_module.ExperimentManager = saved  # type: ignore[misc]
 
 
-def zoo_train(argv: Sequence[str], training_envs: TrainingEnvs | None = None) -> None:
+def zoo_train(
+    argv: Sequence[str], training_envs: TrainingEnvs | None = None, recipe_workers: RecipeWorkers | None = None
+) -> None:
     """rl-zoo3's ``train`` with ``argv`` (rl-zoo3's flags) and :class:`TRPOPlusExperimentManager`, the training envs
-    built by ``training_envs`` where given."""
+    built by ``training_envs`` where given, or by ``recipe_workers`` where the recipe has ``rollout_workers``."""
     from rl_zoo3.train import train
 
-    with zoo_command_line(argv), _zoo_manager(TRPOPlusExperimentManager.with_training_envs(training_envs)):
+    manager = TRPOPlusExperimentManager.with_training_envs(training_envs, recipe_workers)
+    with zoo_command_line(argv), _zoo_manager(manager):
         train()

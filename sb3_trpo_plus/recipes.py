@@ -1,8 +1,11 @@
 """The rl-zoo YAML recipes in Python: the model that ``trpo-plus train --env ID --algo ALGO`` would train.
 
 >>> from sb3_trpo_plus import make_model
->>> model = make_model("Grasper3D-v7", seed=0)       # TRPOPlus, 10 envs, VecNormalize, scripted training starts
->>> model.learn(2_000_000)                           # doctest: +SKIP
+>>> model = make_model("Grasper3D-v7", seed=0)  # doctest: +SKIP
+>>> model.learn(2_000_000)                      # doctest: +SKIP
+
+TRPOPlus with 64 envs under VecNormalize in one rollout worker process, scripted training starts; the recipe
+collects while the learner updates, so a script guards its entry point with ``if __name__ == "__main__":``.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ if TYPE_CHECKING:
 
 # keys of a recipe that describe the environment or the run, not the algorithm's constructor
 _RUN_KEYS = ("n_timesteps", "n_envs", "policy", "normalize", "env_wrapper", "vec_env_wrapper",
-             "callback", "frame_stack", "monitor_kwargs", "env_kwargs")  # fmt: skip
+             "callback", "frame_stack", "monitor_kwargs", "env_kwargs", "rollout_workers")  # fmt: skip
 
 
 def recipe(env_id: str, algo: str = "trpo_plus") -> dict[str, Any]:
@@ -59,7 +62,11 @@ def make_model(
     and any other id in SB3's ``DummyVecEnv``; ``"batch"`` or ``"dummy"`` choose one. ``workers="BACKEND:N"``
     (``inprocess``, ``process`` or ``ray``, as ``trpo-plus train --workers``) collects with ``N`` rollout workers
     instead (``sb3_trpo_plus.rollouts``), the recipe's ``n_envs`` split over them, each worker's physics on
-    ``sim_threads`` threads.
+    ``sim_threads`` threads. A recipe with ``rollout_workers: BACKEND:N`` collects so unless ``workers`` says
+    otherwise (Grasper3D-v7's recipe: one worker process collecting the next segment while the learner updates,
+    ``overlap_collection``; a script that trains it guards its entry point with ``if __name__ == "__main__":``, as
+    for SB3's ``SubprocVecEnv``); such a recipe on one process' envs is ``rollout_workers=None,
+    overlap_collection=False`` with ``vec_env``.
 
     ``overrides`` replace any key of the recipe, run keys (``n_envs``, ``env_kwargs``, ``normalize``, ...) and
     constructor arguments alike (e.g. ``tensorboard_log="runs"``). Train for the recipe's budget with
@@ -76,6 +83,14 @@ def make_model(
     if vec_env == "batch" and not has_batch_engine(env_id):
         raise ValueError(f"vec_env='batch' runs the tasks of grasp_envs ({', '.join(batch_engine_ids())}), got {env_id!r}")
     params = {**recipe(env_id, algo), **overrides}
+    recipe_workers = params.get("rollout_workers")
+    if workers is None and recipe_workers is not None:
+        if vec_env != "auto":
+            raise ValueError(
+                f"the recipe of {env_id} collects with rollout workers (rollout_workers={recipe_workers!r}); "
+                f"vec_env={vec_env!r} needs rollout_workers=None and overlap_collection=False"
+            )
+        workers = recipe_workers
     env: Any
     if workers is not None:
         env = _rollout_workers(env_id, algo, workers, params, seed, sim_threads, vec_env)
@@ -114,17 +129,18 @@ def _rollout_workers(
 ) -> Any:
     """The recipe's training envs as a pool of rollout workers (``workers="BACKEND:N"``)."""
     from sb3_trpo_plus import rollouts
-    from sb3_trpo_plus.zoo import WORKER_BACKENDS
+    from sb3_trpo_plus.zoo import parse_workers
 
-    backend, _, count = workers.partition(":") if isinstance(workers, str) else ("", "", "")
-    if backend not in WORKER_BACKENDS or not count.isdigit() or int(count) < 1:
-        raise ValueError(f"workers must be 'BACKEND:N' with BACKEND one of {WORKER_BACKENDS} and N >= 1, got {workers!r}")
+    try:
+        backend, count = parse_workers(workers)
+    except ValueError as error:
+        raise ValueError(f"workers: {error}") from None
     if algo != "trpo_plus":
         raise ValueError(f"workers collect whole segments for algo='trpo_plus' only, got algo={algo!r}")
     if vec_env != "auto":
         raise ValueError(f"workers collect with their own envs; vec_env={vec_env!r} does not apply")
     return rollouts.split_pool(
-        backend, env_id, int(params.get("n_envs", 1)), int(count), seed=seed, sim_threads=sim_threads,
+        backend, env_id, int(params.get("n_envs", 1)), count, seed=seed, sim_threads=sim_threads,
         env_kwargs=params.get("env_kwargs"), scripted_starts=_scripted_starts(params.get("env_wrapper")),
         info_keywords=(params.get("monitor_kwargs") or {}).get("info_keywords"),
     )  # fmt: skip

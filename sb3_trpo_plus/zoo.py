@@ -45,6 +45,10 @@ ZOO_KEYS: dict[str, tuple[type, ...]] = {
     "env_kwargs": (dict,),
     "policy_kwargs": (dict, str),
 }
+# Keys of a TRPOPlus recipe that ``trpo-plus train`` and ``make_model`` consume (not rl-zoo3, not the constructor)
+RUN_KEYS: dict[str, tuple[type, ...]] = {
+    "rollout_workers": (str, type(None)),  # "BACKEND:N": collect with N rollout workers (parse_workers)
+}
 # packages whose wrapper classes a YAML file may name (rl-zoo3 imports and calls what env_wrapper names)
 WRAPPER_PACKAGES = ("grasp_envs.", "gymnasium.wrappers.", "stable_baselines3.", "sb3_contrib.", "rl_zoo3.wrappers.",
                     "sb3_trpo_plus.")  # fmt: skip
@@ -149,7 +153,7 @@ def load_hyperparameters(path: str | Path, algo: str, env_ids: list[str] | None 
         raise HyperparameterError(f"{path}: malformed YAML: {error}") from None
     if not isinstance(data, dict):
         raise HyperparameterError(f"{path}: expected a mapping of env ids to hyperparameters")
-    accepted = {**_constructor_types(algos[algo]), **ZOO_KEYS}
+    accepted = {**_constructor_types(algos[algo]), **ZOO_KEYS, **(RUN_KEYS if algo == "trpo_plus" else {})}
     result: dict[str, dict[str, Any]] = {}
     for env_id, params in data.items():
         if env_ids is not None and env_id not in env_ids:
@@ -179,6 +183,11 @@ def load_hyperparameters(path: str | Path, algo: str, env_ids: list[str] | None 
                 value = check_wrappers(value, where, base="callback")
             elif key in {"env_wrapper", "vec_env_wrapper"}:
                 value = check_wrappers(value, where, base=key)
+            elif key == "rollout_workers" and value is not None:
+                try:
+                    parse_workers(value)
+                except ValueError as error:
+                    raise HyperparameterError(f"{where}: {error}") from None
             checked[key] = value
         if "n_timesteps" not in checked or "policy" not in checked:
             raise HyperparameterError(f"{path}: {env_id}: n_timesteps and policy are required")
@@ -326,6 +335,15 @@ def batch_training_env(
 
 
 WORKER_BACKENDS = ("inprocess", "process", "ray")
+
+
+def parse_workers(value: Any) -> tuple[str, int]:
+    """``"BACKEND:N"`` (``trpo-plus train --workers``, ``make_model(workers=...)``, a recipe's ``rollout_workers``)
+    as ``(backend, N)``; anything else raises ``ValueError`` naming the value."""
+    backend, _, count = value.partition(":") if isinstance(value, str) else ("", "", "")
+    if backend not in WORKER_BACKENDS or not count.isdigit() or int(count) < 1:
+        raise ValueError(f"expected 'BACKEND:N' with BACKEND one of {', '.join(WORKER_BACKENDS)} and N >= 1, got {value!r}")
+    return backend, int(count)
 
 
 def workers_training_env(

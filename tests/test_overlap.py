@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -173,8 +175,8 @@ def test_make_model_builds_the_recipe_on_rollout_workers() -> None:
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"workers": "process"}, "workers must be 'BACKEND:N'"),
-        ({"workers": "thread:2"}, "workers must be 'BACKEND:N'"),
+        ({"workers": "process"}, "workers: expected 'BACKEND:N'"),
+        ({"workers": "thread:2"}, "workers: expected 'BACKEND:N'"),
         ({"workers": "process:3"}, "does not split over 3 workers"),
         ({"workers": "process:1", "algo": "ppo"}, "algo='trpo_plus' only"),
         ({"workers": "process:1", "vec_env": "dummy"}, "vec_env='dummy' does not apply"),
@@ -193,3 +195,14 @@ def test_overlap_needs_generalized_reuse_and_rollout_workers() -> None:
         model.learn(64)
     with pytest.raises(ValueError, match="`overlap_collection` must be a bool"):
         TRPOPlus("MlpPolicy", "Pendulum-v1", sample_reuse="generalized", overlap_collection=1)
+
+
+def test_a_script_without_a_main_guard_is_told_to_add_one(tmp_path: Path) -> None:
+    """Worker processes import the script that starts them: an unguarded one fails at the pool's start, and the
+    error says what to add."""
+    script = tmp_path / "train.py"
+    script.write_text('from sb3_trpo_plus.rollouts import ProcessRollouts\n\nProcessRollouts("Reacher2D-v1", 1, 2)\n')
+    result = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert result.returncode != 0
+    assert "died: exit code 1 while starting" in result.stderr
+    assert 'guards its entry point with `if __name__ == "__main__":`' in result.stderr

@@ -33,7 +33,8 @@ def test_recommended_grasper_yaml_is_the_shipped_agents_config() -> None:
     assert config == entry
     saved = read_model_data(AGENT / f"{RECOMMENDED_GRASPER}.zip")
     algorithm_keys = {"n_steps", "batch_size", "gamma", "gae_lambda", "cg_max_steps", "cg_damping", "n_critic_updates",
-                      "replay_memory", "cg_warm_start", "sample_reuse", "reuse_batches", "fisher_sub_sampling"}  # fmt: skip
+                      "replay_memory", "cg_warm_start", "sample_reuse", "reuse_batches", "fisher_sub_sampling",
+                      "overlap_collection"}  # fmt: skip
     assert algorithm_keys <= set(entry)
     for key in algorithm_keys:
         assert saved[key] == entry[key], key
@@ -83,7 +84,8 @@ def test_trpo_plus_train_wraps_training_envs_only(tmp_path: Path, monkeypatch: p
 
     monkeypatch.setattr(ScriptedStarts, "__init__", counting)
     monkeypatch.chdir(tmp_path)
-    tiny = ["-params", "n_envs:2", "n_steps:16", "batch_size:16", "--num-threads", "1", "--vec-env", "dummy"]
+    tiny = ["-params", "n_envs:2", "n_steps:16", "batch_size:16", "rollout_workers:None", "overlap_collection:False",
+            "--num-threads", "1", "--vec-env", "dummy"]  # fmt: skip
     evaluation = ["--eval-freq", "16", "--eval-episodes", "1", "--n-eval-envs", "1"]
     cli.main(
         ["train", "--env", RECOMMENDED_GRASPER, "-n", "64", "--seed", "0", "-f", str(tmp_path / "logs"), *evaluation, *tiny]
@@ -127,26 +129,43 @@ def test_yaml_dict_text_is_read_as_literals(tmp_path: Path) -> None:
 
 
 def test_make_model_builds_the_recipe_in_python() -> None:
-    """``make_model`` gives the model ``trpo-plus train`` trains: the recipe's hyperparameters, envs and wrappers."""
+    """``make_model`` gives the model ``trpo-plus train`` trains: the recipe's hyperparameters, its rollout worker
+    collecting the next segment during each update, and its scripted training starts."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from grasp_envs import BatchVecEnv
     from grasp_envs.wrappers import ScriptedStarts
     from sb3_trpo_plus import TRPOPlus, make_model, recipe
+    from sb3_trpo_plus.rollouts import ProcessRollouts
 
-    model = make_model(RECOMMENDED_GRASPER, seed=3, n_steps=16, batch_size=16)
     params = recipe(RECOMMENDED_GRASPER)
-    assert isinstance(model, TRPOPlus) and model.n_steps == 16 and model.seed == 3
-    assert (model.gamma, model.cg_max_steps, model.cg_warm_start) == (params["gamma"], 25, True)
-    env = model.get_env()
-    assert isinstance(env, VecNormalize) and env.num_envs == params["n_envs"] and env.gamma == params["gamma"]
-    assert isinstance(env.venv, BatchVecEnv)  # the batched engine, the command's default for the tasks of grasp_envs
-    assert env.venv.env_is_wrapped(ScriptedStarts) == [True] * params["n_envs"]
-    model.learn(2 * 16 * params["n_envs"])
+    assert (params["rollout_workers"], params["overlap_collection"]) == ("process:1", True)
+    model = make_model(RECOMMENDED_GRASPER, seed=3, n_steps=16, batch_size=16)
+    try:
+        assert isinstance(model, TRPOPlus) and model.n_steps == 16 and model.seed == 3 and model.overlap_collection
+        assert (model.gamma, model.cg_max_steps, model.cg_warm_start) == (params["gamma"], 25, True)
+        env = model.get_env()
+        assert isinstance(env, VecNormalize) and env.num_envs == params["n_envs"] and env.gamma == params["gamma"]
+        assert isinstance(env.venv, ProcessRollouts) and env.venv.num_workers == 1
+        model.learn(3 * 16 * params["n_envs"])
+        assert model.num_timesteps == 3 * 16 * params["n_envs"]
+        assert env.venv.env_is_wrapped(ScriptedStarts) == [True] * params["n_envs"]  # in the worker's batched envs
+    finally:
+        model.get_env().close()
     with pytest.raises(HyperparameterError, match="no recipe for 'CartPole-v1'"):
         make_model("CartPole-v1")
     with pytest.raises(ValueError, match="algo must be one of"):
         recipe(RECOMMENDED_GRASPER, algo="sac")
+
+
+def test_make_model_on_one_process_names_the_recipes_workers() -> None:
+    """vec_env='batch' or 'dummy' on a recipe with rollout workers says how to leave them out, and then builds."""
+    from grasp_envs import BatchVecEnv
+    from sb3_trpo_plus import make_model
+
+    with pytest.raises(ValueError, match=r"rollout_workers='process:1'.*needs rollout_workers=None and overlap"):
+        make_model(RECOMMENDED_GRASPER, vec_env="batch")
+    model = make_model(RECOMMENDED_GRASPER, vec_env="batch", rollout_workers=None, overlap_collection=False, n_envs=2)
+    assert isinstance(model.get_vec_normalize_env().venv, BatchVecEnv) and not model.overlap_collection
 
 
 def test_make_model_on_the_batched_engine_collects_what_dummy_vec_env_collects() -> None:
@@ -154,8 +173,9 @@ def test_make_model_on_the_batched_engine_collects_what_dummy_vec_env_collects()
     from sb3_trpo_plus import make_model
 
     buffers = []
+    one_process = {"rollout_workers": None, "overlap_collection": False}
     for vec_env in ("batch", "dummy"):
-        model = make_model(RECOMMENDED_GRASPER, seed=5, vec_env=vec_env, n_steps=120, batch_size=120, n_envs=4)
+        model = make_model(RECOMMENDED_GRASPER, seed=5, vec_env=vec_env, n_steps=120, batch_size=120, n_envs=4, **one_process)
         model.learn(120 * 4)
         buffers.append(model.rollout_buffer)
     for name in ("observations", "actions", "rewards", "episode_starts", "returns"):

@@ -15,7 +15,7 @@ from rl_zoo3.utils import get_wrapper_class
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sb3_trpo_plus import cli
+from sb3_trpo_plus import cli, make_model
 from sb3_trpo_plus.zoo import ALGO_FILES, ZOO_DIR, HyperparameterError, algorithms, load_hyperparameters
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -26,6 +26,14 @@ TINY_ZOO = ["-params", "n_envs:2", "n_steps:32", "batch_size:32", "--num-threads
 @pytest.mark.parametrize(("algo", "env_id"), ENTRIES, ids=[f"{a}-{e}" for a, e in ENTRIES])
 def test_every_yaml_entry_builds_and_runs(algo: str, env_id: str) -> None:
     params = dict(load_hyperparameters(ZOO_DIR / ALGO_FILES[algo], algo)[env_id])
+    if params.get("rollout_workers") is not None:  # the recipe's own rollout workers (tests/test_recipes.py)
+        model = make_model(env_id, algo, seed=0, n_envs=2, n_steps=64, batch_size=64)
+        try:
+            model.learn(256)
+        finally:
+            model.get_env().close()
+        assert model.num_timesteps >= 256
+        return
     for key in ("n_timesteps", "n_envs", "normalize", "monitor_kwargs", "callback"):
         params.pop(key, None)
     policy = params.pop("policy")
@@ -91,6 +99,8 @@ def test_policy_kwargs_mapping_and_zoo_text_form(tmp_path: Path) -> None:
         ('Pendulum-v1:\n  n_timesteps: 1\n  policy: MlpPolicy\n  policy_kwargs: "dict(net_arch=os.getcwd())"\n', "literal"),
         ("Pendulum-v1:\n  n_timesteps: 1\n  policy: MlpPolicy\n  policy_kwargs:\n    activation_fn: swish\n", "activation_fn"),
         ("Pendulum-v1:\n  n_timesteps: 1\n  policy: MlpPolicy\n  policy_kwargs:\n    net_arc: [8]\n", "net_arc"),
+        ("Pendulum-v1:\n  n_timesteps: 1\n  policy: MlpPolicy\n  rollout_workers: process\n", "expected 'BACKEND:N'"),
+        ("Pendulum-v1:\n  n_timesteps: 1\n  policy: MlpPolicy\n  rollout_workers: 2\n", "rollout_workers: expected str"),
     ],
 )
 def test_bad_yaml_gives_error_naming_file_and_key(tmp_path: Path, text: str, message: str) -> None:
@@ -369,9 +379,9 @@ def test_train_with_rollout_workers_in_processes_trains_as_in_process(tmp_path: 
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--workers", "ray"], "expected BACKEND:N"),
-        (["--workers", "threads:2"], "expected BACKEND:N with BACKEND one of inprocess, process, ray"),
-        (["--workers", "process:0"], "expected BACKEND:N"),
+        (["--workers", "ray"], "expected 'BACKEND:N'"),
+        (["--workers", "threads:2"], "expected 'BACKEND:N' with BACKEND one of inprocess, process, ray"),
+        (["--workers", "process:0"], "expected 'BACKEND:N'"),
         (["--workers", "process:2", "--vec-env", "batch"], "--vec-env batch does not apply"),
         (["--workers", "process:2", "--algo", "ppo"], "for trpo_plus only"),
     ],
@@ -380,3 +390,23 @@ def test_workers_flag_is_checked(argv, message, capsys) -> None:
     with pytest.raises(SystemExit):
         cli.main(["train", "--env", "Grasper3D-v7", *argv])
     assert message in capsys.readouterr().err
+
+
+def test_train_collects_with_the_recipes_rollout_worker(tmp_path: Path, monkeypatch) -> None:
+    """Grasper3D-v7's recipe names one worker process (``rollout_workers: process:1``) that collects the next segment
+    while the learner updates: ``trpo-plus train`` runs it so; ``--vec-env`` beside it is refused with the way out."""
+    from sb3_trpo_plus import TRPOPlus
+
+    monkeypatch.chdir(tmp_path)
+    tiny = ["--seed", "0", "--eval-freq", "-1", "-params", "n_envs:2", "n_steps:16", "batch_size:16", "--num-threads", "1"]
+    cli.main(["train", "--env", "Grasper3D-v7", "-n", "96", "-f", str(tmp_path / "logs"), *tiny])
+    run = tmp_path / "logs" / "trpo_plus" / "Grasper3D-v7_1"
+    assert (run / "workers.monitor.csv").exists()
+    model = TRPOPlus.load(run / "Grasper3D-v7.zip")
+    assert model.overlap_collection and model.num_timesteps == 96
+    with pytest.raises(SystemExit) as error:
+        cli.main(["train", "--env", "Grasper3D-v7", "--vec-env", "batch", "-f", str(tmp_path / "other"), *tiny])
+    assert "collects with rollout workers (rollout_workers: process:1); --vec-env batch does not apply" in str(
+        error.value.code
+    )
+    assert "--hyperparams rollout_workers:None overlap_collection:False" in str(error.value.code)

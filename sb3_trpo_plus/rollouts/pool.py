@@ -63,6 +63,8 @@ class RolloutWorkers(VecEnv):
         when a worker dies while stepped one step at a time, :class:`RolloutWorkerError` names it
     """
 
+    _start_hint = ""  # what a worker that dies while starting most likely needs, for its error
+
     def __init__(
         self,
         env_id: str,
@@ -118,7 +120,10 @@ class RolloutWorkers(VecEnv):
                 try:
                     self._backend.start(worker, self.worker_envs, self._torch_seed(worker))
                 except (_WorkerDied, RemoteTraceback) as error:
-                    raise self._error(worker, error) from None
+                    failure = self._error(worker, error)
+                    if isinstance(error, _WorkerDied) and self._start_hint:
+                        failure = RolloutWorkerError(f"{failure} while starting; {self._start_hint}")
+                    raise failure from None
             descriptions = self._all("describe")
         except BaseException:
             for worker in started:
@@ -453,6 +458,11 @@ class InProcessRollouts(RolloutWorkers):
 
 class ProcessRollouts(RolloutWorkers):
     """One local process per rollout worker. ``start_method``: as SB3's ``SubprocVecEnv`` (default forkserver)."""
+
+    _start_hint = (
+        "a worker process imports the script that started it, so a script that makes a ProcessRollouts (or trains a "
+        'recipe with rollout_workers: process:N) guards its entry point with `if __name__ == "__main__":`'
+    )
 
     def __init__(self, env_id: str, num_workers: int, envs_per_worker: int, *, start_method: str | None = None, **kwargs: Any):
         check_arguments(type(self).__name__, POOL_ARGUMENT_RULES, {"start_method": start_method})
