@@ -485,7 +485,8 @@ def write_report(out: Path, docs: Path, tables_page: Path | None = None) -> None
 
 
 RECIPE = "recipe"
-"""An agents.json entry's ``variant`` for an agent trained by ``trpo-plus train`` with the zoo YAML's recipe."""
+"""An agents.json entry's ``variant`` for an agent trained by ``trpo-plus train`` with the zoo YAML's recipe (its
+``command``: the command line that trained it, where it is not ``trpo-plus train --env <env> --seed <seed>``)."""
 
 
 def agents_section(manifest_path: Path) -> list[str]:
@@ -528,8 +529,9 @@ def agents_section(manifest_path: Path) -> list[str]:
         if "held_out" in entry:  # episodes that played no part in picking the agent
             held_out = entry["held_out"]
             lifted = round(held_out["success_rate"] * held_out["episodes"])
+            command = entry.get("command", f"trpo-plus train --env {env_id} --seed {entry['seed']}")
             origin = (
-                f"`{env_id}`'s agent is the one run of `trpo-plus train --env {env_id} --seed {entry['seed']}`."
+                f"`{env_id}`'s agent is the one run of `{command}`."
                 if entry["variant"] == RECIPE
                 else f"`{env_id}`'s agent is seed {entry['seed']} of its variant's runs, picked by the"
                 f" {REEVALUATION_EPISODES}-episode evaluation above."

@@ -392,7 +392,7 @@ def test_an_export_merges_into_the_agents_entry(capsys: pytest.CaptureFixture[st
     assert list(merged) == [*entry, "platform"]  # the entry's keys in their places, a new one last
     other = report.merged_entry(entry, {**exported, "seed": entry["seed"] + 1})
     assert set(other) == set(exported) and other["seed"] == entry["seed"] + 1
-    assert "dropped its held_out, success_rate_100, mean_reward_100" in capsys.readouterr().out
+    assert "dropped its command, held_out, success_rate_100, mean_reward_100" in capsys.readouterr().out
     assert report.merged_entry({}, exported) == exported
 
 

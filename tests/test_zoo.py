@@ -295,7 +295,8 @@ def test_train_with_the_batched_engine_trains_as_with_dummy_vec_env(tmp_path: Pa
         logs = tmp_path / vec_env
         cli.main(
             ["train", "--env", "Grasper3D-v7", "-n", "256", "--seed", "3", "-f", str(logs), "--eval-freq", "-1",
-             "--vec-env", vec_env, "-params", "n_envs:2", "n_steps:64", "batch_size:64", "--num-threads", "1"]
+             "--vec-env", vec_env, "-params", "n_envs:2", "n_steps:64", "batch_size:64", "rollout_workers:None",
+             "overlap_collection:False", "--num-threads", "1"]
         )  # fmt: skip
         from sb3_trpo_plus import TRPOPlus
 
