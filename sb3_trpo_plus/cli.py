@@ -106,7 +106,7 @@ def train(argv: Sequence[str]) -> None:
         if known.algo != "trpo_plus":
             parser.error(f"--workers collects whole segments for trpo_plus only, got --algo {known.algo}")
         backend, count = known.workers
-        make = _workers_factory(backend, count, known.sim_threads)
+        make = _workers_factory(backend, count, known.sim_threads, f"--workers {backend}:{count}")
         known.vec_env = "dummy"
     else:
         if known.vec_env is None:  # the same transitions as dummy, faster from a few envs on
@@ -136,7 +136,8 @@ def train(argv: Sequence[str]) -> None:
         from sb3_trpo_plus.zoo import parse_workers
 
         try:
-            return _workers_factory(*parse_workers(value), known.sim_threads)
+            backend, count = parse_workers(value)
+            return _workers_factory(backend, count, known.sim_threads, f"(the recipe's rollout_workers: {value})")
         except ValueError as error:
             raise SystemExit(f"trpo-plus train: rollout_workers: {error}") from None
 
@@ -144,9 +145,9 @@ def train(argv: Sequence[str]) -> None:
     zoo_train(_zoo_argv(known.algo, known.env, [*rest, "--vec-env", vec_env]), make, recipe_workers)
 
 
-def _workers_factory(backend: str, count: int, sim_threads: int) -> Callable[..., Any]:
-    """The training envs of ``--workers BACKEND:N`` (:func:`sb3_trpo_plus.zoo.workers_training_env`); a Ray cluster
-    that refuses this process' token stops the command with one line."""
+def _workers_factory(backend: str, count: int, sim_threads: int, origin: str) -> Callable[..., Any]:
+    """The training envs of ``BACKEND:N`` workers (:func:`sb3_trpo_plus.zoo.workers_training_env`); a Ray cluster
+    that refuses this process' token stops the command with one line naming ``origin`` (the flag or the key)."""
     from sb3_trpo_plus.zoo import workers_training_env
 
     if backend == "ray":
@@ -155,7 +156,7 @@ def _workers_factory(backend: str, count: int, sim_threads: int) -> Callable[...
         try:
             check_cluster_token()  # before rl-zoo3 builds anything: one line, not Ray's 20 s of retries
         except RayAuthenticationError as error:
-            raise SystemExit(f"trpo-plus train --workers ray:{count}: {error}") from None
+            raise SystemExit(f"trpo-plus train {origin}: {error}") from None
     return functools.partial(workers_training_env, backend=backend, num_workers=count, n_threads=sim_threads)
 
 

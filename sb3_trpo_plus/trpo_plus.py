@@ -122,7 +122,8 @@ class TRPOPlus(TRPO):
     :param reuse_kl_vary: the generalized radius ``epsilon = sqrt(2 target_kl)`` less the weighted mean
         ``|pi_k / q - 1|`` the old batches already spent (GeTRPO's ``eps_vary``), instead of the ``1 / B`` scaling
     :param overlap_collection: the rollout workers collect the next segment while the learner updates (both run at
-        once): each segment is collected with the weights from before the last update, one update behind, and the
+        once): each segment after the first (collected while the learner waits, as is the first after the pool's
+        reset) is collected with the weights from before the last update, one update behind, and the
         generalized update treats it as off-policy data (importance ratios against the behaviour log-probabilities
         it recorded, off-policy GAE, the radius as for the stored batches). Needs ``sample_reuse="generalized"`` and
         an env that is a pool of rollout workers (``sb3_trpo_plus.rollouts``, bare or under one ``VecNormalize``)
@@ -215,12 +216,8 @@ class TRPOPlus(TRPO):
         self.reuse_max_batches = int(reuse_max_batches)
         self.reuse_trace_clip = float(reuse_trace_clip)
         self.reuse_kl_vary = reuse_kl_vary
-        if overlap_collection and sample_reuse != "generalized":
-            raise ValueError(
-                "TRPOPlus: overlap_collection=True learns from segments one update old; it needs "
-                f"sample_reuse='generalized' to correct for that, got sample_reuse={sample_reuse!r}"
-            )
         self.overlap_collection = overlap_collection
+        self._check_overlap()
         if sample_reuse == "generalized":
             conflicts = {"replay_memory": replay_memory > 0, "value_baseline='linear'": value_baseline == "linear",
                          "replay_critic": replay_critic, "replay_is_clip": replay_is_clip is not None}  # fmt: skip
@@ -263,7 +260,16 @@ class TRPOPlus(TRPO):
             return None
         return reuse_weights(self.reuse_batches, self.reuse_max_batches)
 
+    def _check_overlap(self) -> None:
+        """``overlap_collection`` learns from segments one update old: the generalized update corrects for that."""
+        if self.overlap_collection and self.sample_reuse != "generalized":
+            raise ValueError(
+                "TRPOPlus: overlap_collection=True learns from segments one update old; it needs "
+                f"sample_reuse='generalized' to correct for that, got sample_reuse={self.sample_reuse!r}"
+            )
+
     def _setup_model(self) -> None:
+        self._overlap_ordered = False  # a segment was ordered during the last update (overlap_collection)
         # None, or SB3's own classes in a model saved by version 0.1.0: the buffers that hold their segment
         if self.rollout_buffer_class in (None, RolloutBuffer, DictRolloutBuffer):
             dict_space = isinstance(self.observation_space, spaces.Dict)
@@ -287,6 +293,14 @@ class TRPOPlus(TRPO):
         progress_bar: bool = False,
     ) -> tuple[int, BaseCallback]:
         reset = reset_num_timesteps or self._last_obs is None
+        self._check_overlap()  # again: SB3's load() sets the arguments it is given without __init__'s checks
+        if self.overlap_collection and self.env is not None and rollout_workers(self.env) is None:
+            raise ValueError(
+                "TRPOPlus: overlap_collection=True collects on rollout workers while the learner updates; the env is "
+                f"{type(self.env).__name__}, not a pool of sb3_trpo_plus.rollouts (bare or under one VecNormalize)"
+            )
+        if reset:  # SB3 resets the env, which drops a segment ordered before
+            self._overlap_ordered = False
         states, self._rng_states = self._rng_states, None
         if states and not reset_num_timesteps:  # resuming a loaded run: its generators continue where it was saved
             th.set_rng_state(states["torch"])
@@ -322,11 +336,6 @@ class TRPOPlus(TRPO):
                 f"the rollout workers are wrapped by {type(env).__name__}: TRPOPlus steps them one step at a time "
                 "(no segments, no restarts); wrap them with one VecNormalize at most to collect whole segments",
                 stacklevel=2,
-            )
-        if pool is None and self.overlap_collection:
-            raise ValueError(
-                "TRPOPlus: overlap_collection=True collects on rollout workers while the learner updates; the env is "
-                f"{type(env).__name__}, not a pool of sb3_trpo_plus.rollouts (bare or under one VecNormalize)"
             )
         if pool is not None and self.use_sde:
             raise ValueError("rollout workers sample without gSDE: use_sde=True needs a VecEnv stepped by the learner")
@@ -392,7 +401,15 @@ class TRPOPlus(TRPO):
         if self.overlap_collection and pool.collecting:  # ordered before the last update
             segments = pool.gather_segments()
         else:
+            if self._overlap_ordered:  # shown once per program by Python's default warning filter
+                warnings.warn(
+                    "TRPOPlus: the segment ordered during the last update was dropped: something used the rollout "
+                    "workers between two rollouts (reset, env_method, get_attr or set_attr, e.g. in a callback); "
+                    "this rollout is collected while the learner waits",
+                    stacklevel=2,
+                )
             segments = pool.collect_segments(self.policy, n_rollout_steps, self.gamma, NormalizationStats.of(vec_normalize))
+        self._overlap_ordered = False
         segment = Segment.concatenate(segments)
         normalizer = NormalizationStats.of(vec_normalize)
         n_envs = pool.num_envs
@@ -427,6 +444,7 @@ class TRPOPlus(TRPO):
         self._log_workers(pool, n_rollout_steps)
         if self.overlap_collection:  # the next segment, with these weights and statistics, while train() updates
             pool.submit_segments(self.policy, n_rollout_steps, self.gamma, NormalizationStats.of(vec_normalize))
+            self._overlap_ordered = True
         return segment
 
     def _log_workers(self, pool: RolloutWorkers, n_steps: int) -> None:

@@ -145,12 +145,17 @@ def test_a_fresh_batch_of_the_current_policy_evaluated_as_a_stored_one_is_the_bu
 
 
 def test_process_workers_learn_across_learn_calls_and_save_and_load(tmp_path: Path) -> None:
-    env = VecNormalize(ProcessRollouts("Reacher2D-v1", num_workers=2, envs_per_worker=2, seed=0))
+    pool = ProcessRollouts("Reacher2D-v1", num_workers=2, envs_per_worker=2, seed=0)
+    env = VecNormalize(pool)
+    waited: list[int] = []  # rollouts collected while the learner waited
+    collect = pool.collect_segments
+    pool.collect_segments = lambda *args: waited.append(1) or collect(*args)  # type: ignore[method-assign]
     try:
         model = TRPOPlus("MlpPolicy", env, seed=0, sample_reuse="generalized", overlap_collection=True, **TINY)
         model.learn(3 * 128)
+        assert pool.collecting and len(waited) == 1  # only the first rollout was collected while the learner waited
         model.learn(2 * 128, reset_num_timesteps=False)  # the segment ordered by the first call is its first
-        assert model.num_timesteps == 5 * 128
+        assert model.num_timesteps == 5 * 128 and len(waited) == 1
         assert all(th.isfinite(p).all() for p in model.policy.parameters())
         model.save(tmp_path / "model.zip")
         loaded = TRPOPlus.load(tmp_path / "model.zip", env=env)
@@ -205,4 +210,40 @@ def test_a_script_without_a_main_guard_is_told_to_add_one(tmp_path: Path) -> Non
     result = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert result.returncode != 0
     assert "died: exit code 1 while starting" in result.stderr
-    assert 'guards its entry point with `if __name__ == "__main__":`' in result.stderr
+    assert 'guard its entry point with `if __name__ == "__main__":`' in result.stderr
+
+
+def test_closing_the_pool_while_a_segment_is_collected_stops_the_worker_cleanly() -> None:
+    pool = ProcessRollouts("Reacher2D-v1", num_workers=1, envs_per_worker=2, seed=0)
+    policy = TRPOPlus("MlpPolicy", "Reacher2D-v1", seed=0, **TINY).policy
+    pool.reset()
+    process = pool._backend.processes[0]  # type: ignore[attr-defined]
+    pool.submit_segments(policy, 512, 0.99, None)
+    pool.close()  # as after learn() with a segment ordered: the worker finds the pipe closed and stops
+    assert process.exitcode == 0
+
+
+class _AsksThePool(BaseCallback):
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_end(self) -> None:  # after the next segment was ordered
+        self.training_env.get_attr("spec")
+
+
+def test_a_callback_that_uses_the_pool_drops_the_ordered_segment_with_a_warning() -> None:
+    pool = InProcessRollouts("Reacher2D-v1", num_workers=1, envs_per_worker=2, seed=0)
+    try:
+        model = TRPOPlus("MlpPolicy", pool, seed=0, sample_reuse="generalized", overlap_collection=True, **TINY)
+        with pytest.warns(UserWarning, match="the segment ordered during the last update was dropped"):
+            model.learn(2 * 32 * 2, callback=_AsksThePool())
+        assert model.num_timesteps == 2 * 32 * 2
+    finally:
+        pool.close()
+
+
+def test_load_checks_overlap_collection_as_the_constructor_does(tmp_path: Path) -> None:
+    TRPOPlus("MlpPolicy", "Pendulum-v1", **TINY).save(tmp_path / "model.zip")
+    loaded = TRPOPlus.load(tmp_path / "model.zip", env=make_vec_env("Pendulum-v1"), overlap_collection=True)
+    with pytest.raises(ValueError, match="needs sample_reuse='generalized'"):
+        loaded.learn(64)

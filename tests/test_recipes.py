@@ -173,6 +173,20 @@ def test_make_model_on_one_process_names_the_recipes_workers() -> None:
     assert isinstance(model.get_vec_normalize_env().venv, BatchVecEnv) and not model.overlap_collection
 
 
+def test_make_model_workers_replace_the_recipes() -> None:
+    from sb3_trpo_plus import make_model
+    from sb3_trpo_plus.rollouts import InProcessRollouts
+
+    model = make_model(RECOMMENDED_GRASPER, workers="inprocess:2", n_envs=4, n_steps=8, batch_size=32)
+    try:
+        pool = model.get_vec_normalize_env().venv
+        assert isinstance(pool, InProcessRollouts) and (pool.num_workers, pool.envs_per_worker) == (2, 2)
+        model.learn(3 * 8 * 4)
+        assert model.overlap_collection and pool.collecting
+    finally:
+        model.get_env().close()
+
+
 def test_make_model_on_the_batched_engine_collects_what_dummy_vec_env_collects() -> None:
     """The front door's batched engine (with the recipe's scripted starts) and SB3's DummyVecEnv: the same rollout."""
     from sb3_trpo_plus import make_model

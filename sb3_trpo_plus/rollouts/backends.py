@@ -92,8 +92,15 @@ def _process_main(remote: Connection, parent_remote: Connection, index: int, env
             worker.close()
             break
         try:
-            remote.send((True, getattr(worker, method)(*args)))
+            reply = (True, getattr(worker, method)(*args))
         except Exception:
+            reply = (False, traceback.format_exc())
+        try:
+            remote.send(reply)
+        except (ConnectionError, EOFError):  # the learner closed the pool while this worker collected: stop quietly
+            worker.close()
+            break
+        except Exception:  # e.g. a reply that cannot be pickled: its error instead
             remote.send((False, traceback.format_exc()))
 
 

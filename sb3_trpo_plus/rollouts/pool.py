@@ -121,7 +121,7 @@ class RolloutWorkers(VecEnv):
                     self._backend.start(worker, self.worker_envs, self._torch_seed(worker))
                 except (_WorkerDied, RemoteTraceback) as error:
                     failure = self._error(worker, error)
-                    if isinstance(error, _WorkerDied) and self._start_hint:
+                    if isinstance(error, _WorkerDied) and error.cause == "exit code 1" and self._start_hint:
                         failure = RolloutWorkerError(f"{failure} while starting; {self._start_hint}")
                     raise failure from None
             descriptions = self._all("describe")
@@ -292,17 +292,20 @@ class RolloutWorkers(VecEnv):
         if failure is not None:
             raise failure
         end = time.perf_counter()
-        wall = end - pending.start
         done = [segment for segment in segments if segment is not None]
         for worker, segment in enumerate(done):
             segment.restarted = np.full(self.envs_per_worker, worker in self._fresh)
         self._fresh.clear()
+        slowest = max(segment.seconds for segment in done)
+        # beyond the slowest worker's own time, counted from when the caller waited if it came later (the segments
+        # ordered during an update have been collecting meanwhile): scheduling, serialisation, transfer, restarts
+        transfer = max(end - max(waiting, pending.start + pending.broadcast + slowest), 0.0)
         self.last_timings = {
             "broadcast_s": pending.broadcast,
-            "collect_s": wall - pending.broadcast,
+            "collect_s": slowest + transfer,
             "wait_s": end - waiting,
             "worker_s": [segment.seconds for segment in done],
-            "transfer_s": max(wall - pending.broadcast - max(segment.seconds for segment in done), 0.0),
+            "transfer_s": transfer,
         }
         return done
 
@@ -460,8 +463,8 @@ class ProcessRollouts(RolloutWorkers):
     """One local process per rollout worker. ``start_method``: as SB3's ``SubprocVecEnv`` (default forkserver)."""
 
     _start_hint = (
-        "a worker process imports the script that started it, so a script that makes a ProcessRollouts (or trains a "
-        'recipe with rollout_workers: process:N) guards its entry point with `if __name__ == "__main__":`'
+        "a worker process imports the script that started it: if the script makes a ProcessRollouts (or trains a "
+        'recipe with rollout_workers: process:N) at import, guard its entry point with `if __name__ == "__main__":`'
     )
 
     def __init__(self, env_id: str, num_workers: int, envs_per_worker: int, *, start_method: str | None = None, **kwargs: Any):
