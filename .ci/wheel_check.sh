@@ -102,16 +102,20 @@ step "the zoo extra, for the trpo-plus command"
 "$BIN/pip" install -q --no-compile "$WHEEL[zoo]"
 
 step "README quick start with the recipe (make_model), shortened rollouts"
-"$BIN/python" - <<'PY'
-import gymnasium
+# a script file, as in the README: the recipe's worker process re-imports the script that started it
+cat > quick_start_recipe.py <<'PY'
+import torch
 
 from sb3_trpo_plus import make_model
 
-env_id = "Grasper3D-v7" if "Grasper3D-v7" in gymnasium.registry else "Grasper3D-v6"
-model = make_model(env_id, seed=0, n_steps=100)  # the recipe's envs, wrappers and normalisation
-model.learn(2_000, progress_bar=False)
-print(f"make_model: {env_id}, {model.n_envs} envs, {model.num_timesteps} steps")
+if __name__ == "__main__":
+    torch.set_num_threads(1)
+    model = make_model("Grasper3D-v7", seed=0, n_steps=100)  # the recipe's envs, workers and normalisation
+    model.learn(2_000, progress_bar=False)
+    print(f"make_model: Grasper3D-v7, {model.n_envs} envs, {model.num_timesteps} steps")
+    model.env.close()
 PY
+"$BIN/python" quick_start_recipe.py
 
 step "trpo-plus enjoy on a shipped agent"
 "$BIN/trpo-plus" enjoy --env Reacher2D-v1 --folder "$REPO/trained_agents" --no-render -n 100

@@ -69,8 +69,9 @@ def run_job(
         env = VecNormalize.load(str(stats_path), venv) if config.normalize else venv
         # a variant's own BRANCH_SETTINGS (a target_kl schedule, say) apply to a checkpoint it resumes, so that a run
         # can branch from another variant's checkpoint; every other setting is the checkpoint's
+        # (resolved on this env: a value written {times_zoo: ...} in study.yml is the zoo's value times its factor)
         overrides = VARIANTS[variant].hyperparameters
-        branch = {key: overrides[key] for key in BRANCH_SETTINGS if key in overrides} or None
+        branch = {key: config.kwargs[key] for key in BRANCH_SETTINGS if key in overrides} or None
         model = algo_class.load(model_path, env=env, device="cpu", custom_objects=branch)
         model.__dict__.pop("train", None)  # a checkpoint that holds a wrapper of train() (as below) resumes unwrapped
     else:

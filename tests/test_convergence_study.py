@@ -575,6 +575,23 @@ def test_a_branched_run_takes_its_variants_batch_and_replay_memory(tmp_path: Pat
     assert not list(temporary.glob("SB3-*"))
 
 
+def test_a_variant_with_a_multiple_of_the_zoos_batch_resumes_its_own_run(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """generalized_reuse writes n_steps as {times_zoo: {factor: 0.5}}: a resumed job loads its checkpoint with the
+    value resolved on the env (the zoo's 256 x 0.5), not with the study.yml object."""
+    from sb3_trpo_plus import TRPOPlus
+
+    monkeypatch.setitem(study.BUDGETS, "Reacher2D-v1", 2 * 1024)
+    runner.run_job("Reacher2D-v1", "generalized_reuse", 0, 1024, tmp_path)  # one rollout of 8 envs x 128 steps
+    runner.run_job("Reacher2D-v1", "generalized_reuse", 0, 2 * 1024, tmp_path)
+    folder = runs.job_folder(tmp_path, "Reacher2D-v1", "generalized_reuse", 0)
+    rows = runs.read_progress(folder)
+    assert [(row["timesteps"], row["resumed"]) for row in rows] == [(1024, 0.0), (2048, 1.0)]
+    model = TRPOPlus.load(folder / "model.zip")
+    assert (model.n_steps, model.sample_reuse) == (128, "generalized")
+
+
 def test_kept_checkpoints_are_the_study_as_it_stood_after_each_chunk(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
