@@ -16,6 +16,7 @@ import torch as th
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import RolloutBufferSamples
 
+from sb3_trpo_plus.critic import fit_critic, shuffled_minibatches
 from sb3_trpo_plus.replay import RolloutEvaluation
 from sb3_trpo_plus.reuse import ReuseWeights
 from sb3_trpo_plus.segment import Segment
@@ -168,15 +169,4 @@ def fit_weighted_critic(
     critic), minibatches of ``batch_size`` from one permutation per epoch (numpy's global generator, as SB3's
     buffers), each loss handed to ``critic_step`` (one optimiser step; None where it skipped a non-finite loss)."""
     observations, returns, weights = reused.critic_observations, reused.critic_returns, reused.critic_weights
-    losses, skipped = [], 0
-    for _ in range(n_epochs):
-        order = th.as_tensor(np.random.permutation(len(returns)), device=returns.device)
-        for start in range(0, len(returns), batch_size):
-            idx = order[start : start + batch_size]
-            values = policy.predict_values(observations[idx]).flatten()
-            loss = critic_step((weights[idx] * (returns[idx] - values) ** 2).mean())
-            if loss is None:
-                skipped += 1
-            else:
-                losses.append(loss)
-    return ValueFit(loss=float(np.mean(losses)) if losses else math.nan, skipped_steps=skipped)
+    return fit_critic(policy, lambda: shuffled_minibatches(observations, returns, batch_size, weights), n_epochs, critic_step)

@@ -23,9 +23,9 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import FloatSchedule, explained_variance
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
-from torch.nn import functional as F
 
 from sb3_trpo_plus.baselines import LinearFeatureBaseline
+from sb3_trpo_plus.critic import Minibatch, buffer_minibatches, fit_critic, fit_linear_baseline, shuffled_minibatches
 from sb3_trpo_plus.generalized import ReuseSettings, fit_weighted_critic, generalized_batch
 from sb3_trpo_plus.hyperparameters import (
     HYPERPARAMETER_RULES,
@@ -42,6 +42,7 @@ from sb3_trpo_plus.replay import (
 )
 from sb3_trpo_plus.reuse import ReuseWeights, reuse_weights
 from sb3_trpo_plus.rollouts import RolloutWorkers, buried_rollout_workers, rollout_workers
+from sb3_trpo_plus.rollouts.steps import record_worker_timings, step_through_segment
 from sb3_trpo_plus.segment import (
     LoopState,
     Segment,
@@ -59,6 +60,8 @@ from sb3_trpo_plus.update import (
     actor_parameters,
     natural_gradient_step,
     no_warm_start,
+    record_policy_step,
+    replay_policy_batch,
     surrogate_advantages,
     warm_start_from,
 )
@@ -392,11 +395,10 @@ class TRPOPlus(TRPO):
     def _segment_from_workers(
         self, pool: RolloutWorkers, vec_normalize: VecNormalize | None, callback: BaseCallback, n_rollout_steps: int
     ) -> Segment | None:
-        """Every worker collects ``n_rollout_steps`` steps with the current weights; then, step by step as SB3's
-        ``collect_rollouts`` would have: the ``VecNormalize`` statistics see the raw observations and rewards, the
-        callback's ``on_step`` fires (with ``new_obs``, ``rewards``, ``dones``, ``infos``, ``actions``, ``values``,
-        ``log_probs``; ``infos`` hold the dicts of the episodes that ended, ``{}`` for the others) and the episode
-        statistics are kept (None: the callback stopped training).
+        """Every worker collects ``n_rollout_steps`` steps with the current weights (or the segment ordered during the
+        last update arrives); then its steps go to the ``VecNormalize`` statistics, the callback (SB3's locals; its
+        ``on_step`` fires once per step) and the episode statistics, as SB3's ``collect_rollouts`` would have sent them
+        (:func:`~sb3_trpo_plus.rollouts.steps.step_through_segment`). None: the callback stopped training.
         """
         if self.overlap_collection and pool.collecting:  # ordered before the last update
             segments = pool.gather_segments()
@@ -411,53 +413,23 @@ class TRPOPlus(TRPO):
             segments = pool.collect_segments(self.policy, n_rollout_steps, self.gamma, NormalizationStats.of(vec_normalize))
         self._overlap_ordered = False
         segment = Segment.concatenate(segments)
-        normalizer = NormalizationStats.of(vec_normalize)
         n_envs = pool.num_envs
-        raw_observations, observations = segment.raw_observations, segment.observations
-        assert isinstance(raw_observations, np.ndarray) and isinstance(observations, np.ndarray)
-        restarted = segment.restarted if segment.restarted is not None else np.zeros(n_envs, dtype=bool)
-        if vec_normalize is not None and restarted.any():  # what VecNormalize.reset does for the reset envs
-            if vec_normalize.training and vec_normalize.norm_obs:
-                vec_normalize.obs_rms.update(raw_observations[0][restarted])
-            vec_normalize.returns[restarted] = 0
-        for t in range(n_rollout_steps):
-            dones = segment.dones[t]
-            infos: list[dict[str, Any]] = [{} for _ in range(n_envs)]
-            for idx, info in segment.ended[t]:
-                terminal = info.get("terminal_observation")
-                if normalizer is not None and terminal is not None:  # as VecNormalize gives it to SB3
-                    info = {**info, "terminal_observation": normalizer.normalize_obs(terminal)}
-                infos[idx] = info
-            if vec_normalize is not None:
-                _update_statistics(vec_normalize, raw_observations[t + 1], segment.raw_rewards[t], dones)
-            new_obs = observations[t + 1] if t + 1 < n_rollout_steps else segment.last_observation
+
+        def on_step(step_locals: dict[str, Any], infos: list[dict[str, Any]], dones: np.ndarray) -> bool:
             self.num_timesteps += n_envs
-            callback.update_locals(
-                {"new_obs": new_obs, "rewards": segment.rewards[t], "dones": dones, "infos": infos,
-                 "actions": segment.actions[t], "values": th.as_tensor(segment.values[t]),
-                 "log_probs": th.as_tensor(segment.log_probs[t]), "n_steps": t, "env": self.env}
-            )  # fmt: skip
+            callback.update_locals({**step_locals, "env": self.env})
             if not callback.on_step():
-                return None
+                return False
             self._update_info_buffer(infos, dones)
-            pool.record_episodes(segment.ended[t])
-        self._log_workers(pool, n_rollout_steps)
+            return True
+
+        if not step_through_segment(segment, pool, vec_normalize, on_step):
+            return None
+        record_worker_timings(self.logger.record, pool, n_rollout_steps)
         if self.overlap_collection:  # the next segment, with these weights and statistics, while train() updates
             pool.submit_segments(self.policy, n_rollout_steps, self.gamma, NormalizationStats.of(vec_normalize))
             self._overlap_ordered = True
         return segment
-
-    def _log_workers(self, pool: RolloutWorkers, n_steps: int) -> None:
-        """Per-worker throughput, weight broadcast and segment transfer time of the last collection."""
-        timings = pool.last_timings
-        record = self.logger.record
-        for worker, seconds in enumerate(timings["worker_s"]):
-            record(f"workers/worker_{worker}_steps_per_s", n_steps * pool.envs_per_worker / max(seconds, 1e-9))
-        record("workers/broadcast_ms", 1e3 * timings["broadcast_s"])
-        record("workers/transfer_ms", 1e3 * timings["transfer_s"])
-        record("workers/wait_ms", 1e3 * timings["wait_s"])
-        record("workers/collect_steps_per_s", n_steps * pool.num_envs / max(timings["collect_s"], 1e-9))
-        record("workers/restarts", sum(pool.restarts))
 
     # ------------------------------------------------------------------ update
     def train(self) -> None:
@@ -476,35 +448,9 @@ class TRPOPlus(TRPO):
             self._write_linear_baseline_advantages(segment)
         reuse = self.reuse
         if reuse is not None:
-            settings = ReuseSettings(reuse, self.reuse_trace_clip, self.reuse_kl_vary)
-            stored = list(reversed(self.rollout_memory or []))  # newest first
-            if self.overlap_collection:  # the fresh segment is one update old: evaluated as the stored ones
-                current, stored = None, [segment, *stored]
-            else:
-                current = next(self.rollout_buffer.get(batch_size=None))
-            reused = generalized_batch(
-                self.policy, current, stored, self._reevaluate, settings, self.current_target_kl, self.action_tensor,
-                self.sub_sampling_factor,
-            )  # fmt: skip
-            batch = reused.batch
-            prepared = time.perf_counter()
-            policy_step = self.update_policy(batch, reused.radius)
-            stepped = time.perf_counter()
-            if batch.n_replayed:
-                value_fit = fit_weighted_critic(self.policy, reused, self.n_critic_updates, self.batch_size, self._critic_step)
-            else:
-                value_fit = self._update_value_baseline(segment, [])
-            self.logger.record("train/reuse_batches", reused.n_batches)
-            self.logger.record("train/reuse_radius", reused.radius)
-            self.logger.record("train/reuse_offpolicy_tv", reused.offpolicy_tv)
+            batch, policy_step, value_fit, (prepared, stepped) = self._generalized_update(segment, reuse)
         else:
-            # Re-evaluate the stored rollouts once: the value function does not change before the critic fit
-            replayed = self._reevaluate_memory()
-            batch = self._policy_batch(replayed)
-            prepared = time.perf_counter()
-            policy_step = self.update_policy(batch)
-            stepped = time.perf_counter()
-            value_fit = self._update_value_baseline(segment, replayed)
+            batch, policy_step, value_fit, (prepared, stepped) = self._replay_update(segment)
         self.previous_step = policy_step.applied_step  # the next update's CG warm start
         if self.replay_memory > 0 or (reuse is not None and reuse.n_batches > 1):
             assert self.rollout_memory is not None
@@ -513,6 +459,44 @@ class TRPOPlus(TRPO):
         end = time.perf_counter()
         timings = UpdateTimings(prepare=prepared - start, policy=stepped - prepared, value=end - stepped)
         self._log_update(batch, policy_step, value_fit, timings)
+
+    def _generalized_update(
+        self, segment: Segment, reuse: ReuseWeights
+    ) -> tuple[PolicyBatch, PolicyStep, ValueFit, tuple[float, float]]:
+        """GeTRPO's update: the fresh batch and the stored ones weighted by age, off-policy advantages, the generalized
+        radius, the weighted critic fit (:mod:`sb3_trpo_plus.generalized`). With ``overlap_collection`` the fresh
+        segment is one update old and is evaluated as the stored ones."""
+        settings = ReuseSettings(reuse, self.reuse_trace_clip, self.reuse_kl_vary)
+        stored = list(reversed(self.rollout_memory or []))  # newest first
+        if self.overlap_collection:
+            current, stored = None, [segment, *stored]
+        else:
+            current = next(self.rollout_buffer.get(batch_size=None))
+        reused = generalized_batch(
+            self.policy, current, stored, self._reevaluate, settings, self.current_target_kl, self.action_tensor,
+            self.sub_sampling_factor,
+        )  # fmt: skip
+        prepared = time.perf_counter()
+        policy_step = self.update_policy(reused.batch, reused.radius)
+        stepped = time.perf_counter()
+        if reused.batch.n_replayed:
+            value_fit = fit_weighted_critic(self.policy, reused, self.n_critic_updates, self.batch_size, self._critic_step)
+        else:
+            value_fit = self._update_value_baseline(segment, [])
+        self.logger.record("train/reuse_batches", reused.n_batches)
+        self.logger.record("train/reuse_radius", reused.radius)
+        self.logger.record("train/reuse_offpolicy_tv", reused.offpolicy_tv)
+        return reused.batch, policy_step, value_fit, (prepared, stepped)
+
+    def _replay_update(self, segment: Segment) -> tuple[PolicyBatch, PolicyStep, ValueFit, tuple[float, float]]:
+        """The thesis' update: the current rollout and the replay memory's (none without one), the stored rollouts
+        evaluated once (the value function does not change before the critic's fit)."""
+        replayed = self._reevaluate_memory()
+        batch = self._policy_batch(replayed)
+        prepared = time.perf_counter()
+        policy_step = self.update_policy(batch)
+        stepped = time.perf_counter()
+        return batch, policy_step, self._update_value_baseline(segment, replayed), (prepared, stepped)
 
     def _update_target_kl(self) -> None:
         """This update's trust-region radius, ``target_kl`` at the remaining progress (constant unless a schedule)."""
@@ -567,33 +551,7 @@ class TRPOPlus(TRPO):
     def _policy_batch(self, replayed: Sequence[RolloutEvaluation]) -> PolicyBatch:
         """Current rollout (as SB3 buffered it) followed by the replayed rollouts."""
         current = next(self.rollout_buffer.get(batch_size=None))
-        observations, actions = current.observations, current.actions
-        sampling_log_prob, advantages = current.old_log_prob, current.advantages
-        n_current = len(advantages)
-        if replayed:
-            obs_list, act_list, logq_list, adv_list = [observations], [actions], [sampling_log_prob], [advantages]
-            for evaluation in replayed:
-                stored = evaluation.segment
-                # the actions as the rollout buffer holds them: float32, one row of action_dim per sample
-                stored_actions = stored.actions.reshape(stored.n_samples, -1).astype(np.float32)
-                obs_list.append(self.policy.obs_to_tensor(evaluation.observations)[0])  # type: ignore[arg-type]
-                act_list.append(th.as_tensor(stored_actions, device=self.device))
-                logq_list.append(th.as_tensor(stored.log_probs.reshape(-1), device=self.device))
-                adv_list.append(th.as_tensor(evaluation.advantages.reshape(-1), device=self.device))
-            observations = th.cat(obs_list)
-            actions, sampling_log_prob, advantages = th.cat(act_list), th.cat(logq_list), th.cat(adv_list)
-        if self.sub_sampling_factor > 1:
-            k = self.sub_sampling_factor
-            n_current = len(range(0, n_current, k))
-            observations, actions = observations[::k], actions[::k]
-            sampling_log_prob, advantages = sampling_log_prob[::k], advantages[::k]
-        return PolicyBatch(
-            observations=observations,
-            actions=actions,
-            sampling_log_prob=sampling_log_prob,
-            advantages=advantages,
-            n_current=n_current,
-        )
+        return replay_policy_batch(current, replayed, self.policy, self.sub_sampling_factor)
 
     def _critic_step(self, value_loss: th.Tensor) -> float | None:
         """One Adam step of the critic on ``value_loss``; the actor's parameters move by the trust-region step only.
@@ -645,88 +603,34 @@ class TRPOPlus(TRPO):
     def _update_value_baseline(self, segment: Segment, replayed: Sequence[RolloutEvaluation]) -> ValueFit:
         """Fit the critic (Adam epochs) or refit the linear baseline; ``replayed`` only with ``replay_critic``."""
         if self.value_baseline == "linear":
-            return ValueFit(loss=self._fit_linear_baseline(segment, replayed), skipped_steps=0)
-        value_losses = []
-        skipped = 0
-        for _ in range(self.n_critic_updates):
-            for observations, returns in self._critic_minibatches(replayed):
-                values_pred = self.policy.predict_values(observations)
-                loss = self._critic_step(F.mse_loss(returns, values_pred.flatten()))
-                if loss is None:
-                    skipped += 1
-                    continue
-                value_losses.append(loss)
-        return ValueFit(loss=float(np.mean(value_losses)) if value_losses else math.nan, skipped_steps=skipped)
+            assert self.linear_baseline is not None
+            used = replayed if self.replay_critic else ()
+            loss = fit_linear_baseline(self.linear_baseline, self.rollout_buffer, segment, used)
+            return ValueFit(loss=loss, skipped_steps=0)
+        return fit_critic(self.policy, lambda: self._critic_minibatches(replayed), self.n_critic_updates, self._critic_step)
 
-    def _critic_minibatches(self, replayed: Sequence[RolloutEvaluation]) -> Iterable[tuple[th.Tensor, th.Tensor]]:
-        """Minibatches of (observations, returns): the current rollout's, with ``replay_critic`` the replayed ones' too."""
-        buffer = self.rollout_buffer
+    def _critic_minibatches(self, replayed: Sequence[RolloutEvaluation]) -> Iterable[Minibatch]:
+        """One epoch's minibatches: the current rollout's, with ``replay_critic`` the replayed ones' too."""
         if not (self.replay_critic and replayed):
-            if not (buffer.generator_ready and isinstance(buffer.observations, np.ndarray)):
-                for data in buffer.get(self.batch_size):
-                    yield data.observations, data.returns
-                return
-            # RolloutBuffer.get's minibatches (one permutation per epoch) of the two fields the critic reads only
-            total = buffer.buffer_size * buffer.n_envs
-            observations = th.as_tensor(buffer.observations, device=self.device)
-            returns = th.as_tensor(buffer.returns, device=self.device).flatten()
-            permutation = np.random.permutation(total)
-            for start in range(0, total, self.batch_size):
-                idx = th.as_tensor(permutation[start : start + self.batch_size], device=self.device)
-                yield observations[idx], returns[idx]
-            return
-        current = next(buffer.get(batch_size=None))
-        obs_list, ret_list = [current.observations], [current.returns]
-        for evaluation in replayed:
-            obs_list.append(self.policy.obs_to_tensor(evaluation.observations)[0])  # type: ignore[arg-type]
-            ret_list.append(th.as_tensor(evaluation.returns.reshape(-1), device=self.device))
-        observations, returns = th.cat(obs_list), th.cat(ret_list)
-        order = th.as_tensor(np.random.permutation(len(returns)), device=self.device)
-        for start in range(0, len(returns), self.batch_size):
-            idx = order[start : start + self.batch_size]
-            yield observations[idx], returns[idx]
-
-    def _fit_linear_baseline(self, segment: Segment, replayed: Sequence[RolloutEvaluation]) -> float:
-        assert self.linear_baseline is not None
-        buffer = self.rollout_buffer
-        obs = buffer.observations.reshape(buffer.buffer_size * buffer.n_envs, -1)
-        timesteps = segment.episode_timesteps[: segment.n_steps].reshape(-1)
-        returns = buffer.returns.reshape(-1)
-        if self.replay_critic:
-            for evaluation in replayed:
-                obs = np.concatenate([obs, evaluation.observations.reshape(len(evaluation.observations), -1)])
-                stored = evaluation.segment
-                timesteps = np.concatenate([timesteps, stored.episode_timesteps[: stored.n_steps].reshape(-1)])
-                returns = np.concatenate([returns, evaluation.returns.reshape(-1)])
-        self.linear_baseline.fit(obs, timesteps, returns)
-        return float(np.mean((self.linear_baseline.predict(obs, timesteps) - returns) ** 2))
+            return buffer_minibatches(self.rollout_buffer, self.batch_size, self.device)
+        current = next(self.rollout_buffer.get(batch_size=None))
+        stored = [self.policy.obs_to_tensor(e.observations)[0] for e in replayed]  # flat arrays: tensors
+        observations = th.cat([current.observations, *stored])  # type: ignore[list-item]
+        returns = th.cat([current.returns, *(th.as_tensor(e.returns.reshape(-1), device=self.device) for e in replayed)])
+        return shuffled_minibatches(observations, returns, self.batch_size)
 
     def _log_update(self, batch: PolicyBatch, step: PolicyStep, value_fit: ValueFit, timings: UpdateTimings) -> None:
-        line_search = step.line_search
         record = self.logger.record
-        record("train/policy_objective", line_search.objective if line_search.accepted else step.objective_before)
+        record_policy_step(record, batch, step)
         record("train/value_loss", value_fit.loss)
-        record("train/kl_divergence_loss", line_search.kl)
         record("train/target_kl", self.current_target_kl)
         record(
             "train/explained_variance",
             explained_variance(self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten()),
         )
-        record("train/is_line_search_success", float(line_search.accepted))
         if hasattr(self.policy, "log_std"):
             record("train/std", th.exp(self.policy.log_std).mean().item())
         record("train/n_updates", self._n_updates, exclude="tensorboard")
-        record("train/cg_iterations", step.cg_iterations)
-        record("train/cg_residual", step.cg_residual)
-        record("train/cg_relative_residual", step.cg_relative_residual)
-        record("train/step_gradient_cosine", step.step_gradient_cosine)
-        record("train/fisher_vector_products", step.fisher_vector_products)
-        record("train/cg_warm_start_cosine", step.cg_warm_start_cosine)
-        record("train/line_search_steps", line_search.steps)
-        record("train/step_size", line_search.coefficient)
-        record("train/line_search_nonfinite", float(line_search.nonfinite))
-        record("train/replay_samples", batch.n_replayed)
-        record("train/replay_ess", step.replay_ess)
         record("train/critic_skipped_steps", value_fit.skipped_steps)
         record("train/update_time", timings.prepare + timings.policy + timings.value)
         record("train/prepare_time", timings.prepare)
@@ -839,13 +743,3 @@ def _upgrade_from_0_1(model: TRPOPlus) -> None:
             (record.to_segment() if isinstance(record, StoredRollout) else record for record in memory),
             maxlen=memory.maxlen,
         )
-
-
-def _update_statistics(vec_normalize: VecNormalize, raw_obs: np.ndarray, raw_rewards: np.ndarray, dones: np.ndarray) -> None:
-    """What ``VecNormalize.step_wait`` does to its statistics for one step of raw observations and rewards."""
-    vec_normalize.old_obs, vec_normalize.old_reward = raw_obs, raw_rewards
-    if vec_normalize.training:
-        if vec_normalize.norm_obs:
-            vec_normalize.obs_rms.update(raw_obs)
-        vec_normalize._update_reward(raw_rewards)
-    vec_normalize.returns[dones] = 0

@@ -15,6 +15,7 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.distributions import Distribution, kl_divergence
 from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.type_aliases import RolloutBufferSamples
 from torch import nn
 
 from sb3_trpo_plus.natural_gradient import (
@@ -24,7 +25,7 @@ from sb3_trpo_plus.natural_gradient import (
     fisher_vector_product,
     flat_gradient,
 )
-from sb3_trpo_plus.replay import effective_sample_size, importance_weights
+from sb3_trpo_plus.replay import RolloutEvaluation, effective_sample_size, importance_weights
 
 
 def actor_parameters(policy: ActorCriticPolicy) -> list[nn.Parameter]:
@@ -253,6 +254,57 @@ def natural_gradient_step(
         cg_warm_start_cosine=_cosine(start, direction) if start is not None else 0.0,
         replay_ess=surrogate.replay_ess,
     )
+
+
+def replay_policy_batch(
+    current: RolloutBufferSamples,
+    replayed: Sequence[RolloutEvaluation],
+    policy: ActorCriticPolicy,
+    sub_sampling_factor: int = 1,
+) -> PolicyBatch:
+    """The thesis' replay batch (5.3.1): the current rollout (as SB3's buffer gives it) followed by the replayed
+    rollouts, each with the log-probabilities of the policy that sampled it and its advantages under the current
+    value function; with ``sub_sampling_factor`` ``k``, every k-th sample of the whole."""
+    observations, actions = current.observations, current.actions
+    sampling_log_prob, advantages = current.old_log_prob, current.advantages
+    n_current = len(advantages)
+    if replayed:
+        obs_list, act_list, logq_list, adv_list = [observations], [actions], [sampling_log_prob], [advantages]
+        for evaluation in replayed:
+            stored = evaluation.segment
+            # the actions as the rollout buffer holds them: float32, one row of action_dim per sample
+            stored_actions = stored.actions.reshape(stored.n_samples, -1).astype(np.float32)
+            obs_list.append(policy.obs_to_tensor(evaluation.observations)[0])  # type: ignore[arg-type]
+            act_list.append(th.as_tensor(stored_actions, device=policy.device))
+            logq_list.append(th.as_tensor(stored.log_probs.reshape(-1), device=policy.device))
+            adv_list.append(th.as_tensor(evaluation.advantages.reshape(-1), device=policy.device))
+        observations = th.cat(obs_list)
+        actions, sampling_log_prob, advantages = th.cat(act_list), th.cat(logq_list), th.cat(adv_list)
+    if sub_sampling_factor > 1:
+        k = sub_sampling_factor
+        n_current = len(range(0, n_current, k))
+        observations, actions = observations[::k], actions[::k]
+        sampling_log_prob, advantages = sampling_log_prob[::k], advantages[::k]
+    return PolicyBatch(observations, actions, sampling_log_prob, advantages, n_current)
+
+
+def record_policy_step(record: Callable[..., None], batch: PolicyBatch, step: PolicyStep) -> None:
+    """The policy step's outcome and diagnostics under ``train/`` (SB3's names where sb3-contrib's TRPO logs them)."""
+    line_search = step.line_search
+    record("train/policy_objective", line_search.objective if line_search.accepted else step.objective_before)
+    record("train/kl_divergence_loss", line_search.kl)
+    record("train/is_line_search_success", float(line_search.accepted))
+    record("train/cg_iterations", step.cg_iterations)
+    record("train/cg_residual", step.cg_residual)
+    record("train/cg_relative_residual", step.cg_relative_residual)
+    record("train/step_gradient_cosine", step.step_gradient_cosine)
+    record("train/fisher_vector_products", step.fisher_vector_products)
+    record("train/cg_warm_start_cosine", step.cg_warm_start_cosine)
+    record("train/line_search_steps", line_search.steps)
+    record("train/step_size", line_search.coefficient)
+    record("train/line_search_nonfinite", float(line_search.nonfinite))
+    record("train/replay_samples", batch.n_replayed)
+    record("train/replay_ess", step.replay_ess)
 
 
 def _cosine(a: th.Tensor, b: th.Tensor) -> float:

@@ -206,9 +206,9 @@ def test_critic_is_fit_on_current_rollout_unless_replay_critic(replay_critic: bo
     original = model._critic_minibatches
 
     def spy(replayed):
-        for obs, ret in original(replayed):
+        for obs, ret, weights in original(replayed):
             batches.append(len(obs))
-            yield obs, ret
+            yield obs, ret, weights
 
     model._critic_minibatches = spy  # type: ignore[method-assign]
     model.learn(4 * 64)
@@ -415,7 +415,7 @@ def test_critic_minibatches_are_the_rollout_buffers() -> None:
     expected = [(data.observations, data.returns) for data in buffer.get(model.batch_size)]
     np.random.set_state(state)
     got = list(model._critic_minibatches([]))
-    assert [len(r) for _, r in got] == [48, 48, 32]
+    assert [len(r) for _, r, _ in got] == [48, 48, 32]
     assert len(got) == len(expected)
-    for (obs, returns), (obs_expected, returns_expected) in zip(got, expected, strict=True):
-        assert th.equal(obs, obs_expected) and th.equal(returns, returns_expected)
+    for (obs, returns, weights), (obs_expected, returns_expected) in zip(got, expected, strict=True):
+        assert th.equal(obs, obs_expected) and th.equal(returns, returns_expected) and weights is None
