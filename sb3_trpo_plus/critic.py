@@ -78,7 +78,9 @@ def fit_linear_baseline(
     """Refit ``baseline`` on the rollout buffer's observations and returns (the buffer holds ``segment``) and on the
     ``replayed`` rollouts'; the mean squared error of its fit."""
     observations = buffer.observations.reshape(buffer.buffer_size * buffer.n_envs, -1)
-    timesteps = segment.episode_timesteps[: segment.n_steps].reshape(-1)
+    steps = segment.episode_timesteps[: segment.n_steps]  # [step, env]
+    # once RolloutBuffer.get() has run, the buffer's arrays are flattened env by env (swap_and_flatten)
+    timesteps = (steps.swapaxes(0, 1) if buffer.generator_ready else steps).reshape(-1)
     returns = buffer.returns.reshape(-1)
     for evaluation in replayed:
         observations = np.concatenate([observations, evaluation.observations.reshape(len(evaluation.observations), -1)])

@@ -14,6 +14,7 @@ from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
 from sb3_trpo_plus import TRPOPlus
+from sb3_trpo_plus.baselines import LinearFeatureBaseline
 from sb3_trpo_plus.update import surrogate_advantages
 
 TINY = dict(n_steps=64, batch_size=64, n_critic_updates=2, cg_max_steps=5, policy_kwargs=dict(net_arch=[16]))
@@ -232,6 +233,32 @@ def test_replay_is_clip_truncates_the_replayed_samples_weights() -> None:
     th.testing.assert_close(clipped.advantages[:64], unclipped.advantages[:64])
     th.testing.assert_close(clipped.advantages[64:], unclipped.advantages[64:] * th.clamp(clip / rho, max=1.0))
     assert 0 < unclipped.replay_ess <= 1 and 0 < clipped.replay_ess <= 1
+
+
+@pytest.mark.parametrize("replay_memory", [0, 1])
+def test_linear_baseline_fits_each_sample_with_its_own_step_in_the_episode(replay_memory: int) -> None:
+    """The baseline's time features belong to the samples they stand beside: with several envs whose episodes end at
+    different steps, the fit equals one on the segment's arrays in its own [step, env] order."""
+    model = TRPOPlus(
+        "MlpPolicy", make_vec_env("CartPole-v1", n_envs=2, seed=0), seed=0, value_baseline="linear",
+        replay_memory=replay_memory, **TINY,
+    )  # fmt: skip
+    model.learn(2 * 2 * 64)
+    segment = model.rollout_buffer.segment  # type: ignore[attr-defined]
+    steps = segment.episode_timesteps[: segment.n_steps]
+    assert not np.array_equal(steps[:, 0], steps[:, 1]), "the envs' episodes are in step: the test would prove nothing"
+    buffer = model.rollout_buffer
+    assert buffer.generator_ready  # the update read the buffer: its arrays are flattened env by env
+
+    def step_major(array: np.ndarray) -> np.ndarray:
+        return (
+            array.reshape(buffer.n_envs, buffer.buffer_size, -1).swapaxes(0, 1).reshape(buffer.buffer_size * buffer.n_envs, -1)
+        )
+
+    expected = LinearFeatureBaseline(l2_reg=model.linear_baseline_l2)
+    expected.fit(step_major(buffer.observations), steps.reshape(-1), step_major(buffer.returns))
+    assert model.linear_baseline is not None and model.linear_baseline.weights is not None
+    np.testing.assert_allclose(model.linear_baseline.weights, expected.weights, rtol=1e-10, atol=1e-12)
 
 
 def test_linear_baseline_l2_is_the_ridge_coefficient() -> None:
