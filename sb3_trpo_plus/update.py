@@ -1,4 +1,5 @@
-"""One TRPO policy update as public functions: the surrogate's advantages and the natural-gradient step.
+"""One TRPO policy update as public functions: the surrogate's advantages and the natural-gradient step, the thesis'
+replay batch they learn from, and the step's log records.
 
 ``TRPOPlus.update_policy`` is these two calls; a variant of the update (several steps per batch, another trust
 region) calls them itself rather than reaching into the algorithm's private methods. The numerics they combine
