@@ -698,6 +698,31 @@ def _rows(*evaluations: tuple[int, float]) -> list[dict[str, float]]:
     return [{"timesteps": float(t), "eval_success": s} for t, s in evaluations]
 
 
+def test_improvement_over_every_task_pools_success_and_return_tasks_by_hand() -> None:
+    """P(X > Y) on each task's own area: on a success task X's five runs all beat Y's (1.00); on a return task X's
+    return areas 1..5 against Y's 3 (3 ahead, 1 tie, 1 behind in each seed's comparison with all of Y's: P = 0.5);
+    over both tasks the mean, 0.75. Runs of other variants or seeds beyond the fifth are left out."""
+
+    def run(success: float, ret: float) -> list[dict[str, float]]:
+        return [{"timesteps": 1.0, "eval_success": success, "eval_return": ret}] * 2
+
+    x_success, y_success = {k: run(0.9, 0.0) for k in range(5)}, {k: run(0.1, 0.0) for k in range(6)}
+    x_return, y_return = {k: run(0.0, float(k + 1)) for k in range(5)}, {k: run(0.0, 3.0) for k in range(5)}
+    runs = {
+        "Reacher2D-v1": {"generalized_reuse": x_success, "plain": y_success},
+        "Hopper-v5": {"generalized_reuse": x_return, "plain": y_return},
+    }
+    lines = report.improvement_section(runs, [("generalized_reuse", "plain")])
+    assert "Tasks: Reacher2D-v1, Hopper-v5; 5 seeds per variant" in lines[0]
+    assert lines[2] == "| P(X > Y), area | every task | Reacher2D-v1 | Hopper-v5 |"
+    estimates = re.findall(r"(\d\.\d\d) \[(\d\.\d\d), (\d\.\d\d)\]", lines[4])
+    assert [point for point, _, _ in estimates] == ["0.75", "1.00", "0.50"]
+    assert estimates[1] == ("1.00", "1.00", "1.00")
+    assert report.improvement_section({"Hopper-v5": {"plain": y_return}}, [("generalized_reuse", "plain")]) == [
+        "No env has 5 finished seeds of every variant yet."
+    ]
+
+
 def test_target_table_counts_the_seeds_that_reach_the_target_and_hold_it(tmp_path: Path) -> None:
     """The Grasper's target, by hand: within 2M, then at or above it at every evaluation after 2M, and the same count
     on the re-evaluations of the report's protocol (100 episodes, reset seed 20,000) only."""
@@ -809,6 +834,7 @@ def test_the_report_writes_the_tables_page_whole_and_only_the_block_of_the_resul
     findings.write_text(f"# Results\n\nA finding.\n\n{report.BEGIN}\nold\n{report.END}\n\nAfter.\n")
     monkeypatch.setattr(report, "BUDGETS", {"Reacher2D-v0": 300_000, "Reacher3D-v0": 1_000_000})
     monkeypatch.setattr(report, "rliable_section", lambda *args, **kwargs: ["(aggregates)"])
+    monkeypatch.setattr(report, "improvement_section", lambda *args, **kwargs: ["(improvement)"])
     monkeypatch.setattr(report, "ROOT", tmp_path)  # no trained_agents/: no agents section
     report.write_report(out, findings)
     tables = (docs / "results-tables.md").read_text()
@@ -819,6 +845,7 @@ def test_the_report_writes_the_tables_page_whole_and_only_the_block_of_the_resul
     assert "## Reacher3D-v0\n\nNo finished runs yet (budget 1,000,000 steps)." in tables
     assert "## Aggregate (rliable)\n\n(aggregates)\n" in tables
     assert "## Generalized sample reuse\n\n(aggregates)\n" in tables
+    assert "## Generalized sample reuse, every task\n\n(improvement)\n" in tables
     assert (docs / "images" / "results_Reacher2D-v0.png").exists()
     assert findings.read_text() == (
         f"# Results\n\nA finding.\n\n{report.BEGIN}\n| env | budget (env steps) | seeds |\n|---|---|---|\n"
@@ -826,7 +853,8 @@ def test_the_report_writes_the_tables_page_whole_and_only_the_block_of_the_resul
         "| [Reacher3D-v0](results-tables.md#reacher3d-v0) | 1,000,000 | no run to the budget yet |\n\n"
         "rliable aggregates: [over the envs with 5 finished seeds of every variant]"
         "(results-tables.md#aggregate-rliable); [generalized sample reuse against plain TRPOPlus, TRPO and PPO]"
-        "(results-tables.md#generalized-sample-reuse).\n\n"
+        "(results-tables.md#generalized-sample-reuse); [generalized sample reuse on every task, success or return]"
+        "(results-tables.md#generalized-sample-reuse-every-task).\n\n"
         f"{report.END}\n\nAfter.\n"
     )
 
