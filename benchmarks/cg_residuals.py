@@ -26,6 +26,7 @@ import numpy as np
 import torch as th
 
 import sb3_trpo_plus.update as update_module
+from benchmarks.machine import cpu_name
 from sb3_trpo_plus.natural_gradient import ConjugateGradientResult, conjugate_gradient
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -146,7 +147,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     command = (
         "python -m benchmarks.cg_residuals --envs " + " ".join(args.envs) + f" --updates {args.updates} --seed {args.seed}"
     )
-    machine = {"cpu": platform.processor() or platform.machine(), "python": platform.python_version(), "torch": th.__version__}
+    machine = {"cpu": cpu_name(), "python": platform.python_version(), "torch": th.__version__}
     args.out.write_text(json.dumps({"command": command, "machine": machine, "results": results}) + "\n")
     plot(results, args.plot)
     for result in results:

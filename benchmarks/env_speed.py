@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 
 import grasp_envs
+from benchmarks.machine import cpu_name
 
 
 def time_env_step(env_id: str, steps: int) -> float:
@@ -54,7 +55,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--envs", nargs="+", default=list(grasp_envs.ENV_IDS), choices=grasp_envs.ENV_IDS)
     args = parser.parse_args()
-    print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}, "
+    print(f"machine: {cpu_name()}, python {platform.python_version()}, "
           f"mujoco {mujoco.__version__}, gymnasium {gym.__version__}")  # fmt: skip
     print("\n| env | frame_skip | raw mj_step (µs / env step) | env.step (µs) | overhead ratio | env steps/s |")
     print("|---|---|---|---|---|---|")

@@ -30,6 +30,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
 import grasp_envs  # noqa: F401
 from benchmarks.env_speed import time_env_step
+from benchmarks.machine import cpu_name
 from grasp_envs import BatchVecEnv, make_batch_env
 from sb3_trpo_plus import TRPOPlus
 from sb3_trpo_plus.rollouts import ProcessRollouts
@@ -115,7 +116,7 @@ def main() -> None:
     th.set_num_threads(1)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    results: dict = {"machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+    results: dict = {"machine": {"cpu": cpu_name(), "cores": os.cpu_count(),
                                  "python": platform.python_version(), "torch": th.__version__},
                      "samples": args.samples, "repeats": args.repeats, "envs": {}}  # fmt: skip
     for env_id in args.envs:

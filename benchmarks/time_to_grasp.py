@@ -34,6 +34,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from benchmarks.machine import cpu_name
+
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "time_to_grasp"
 EVAL_SEED = 1_000_000
@@ -99,7 +101,7 @@ def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any
                 "eval_episodes": args.eval_episodes, "sim_threads": args.sim_threads,
                 "workers": args.workers or {**recipe(args.env, algo), **overrides}.get("rollout_workers"),
                 "overrides": overrides,
-                "machine": {"cpu": platform.processor() or platform.machine(), "python": platform.python_version(),
+                "machine": {"cpu": cpu_name(), "python": platform.python_version(),
                             "torch": th.__version__}}  # fmt: skip
     (folder / f"seed{seed}.json").write_text(json.dumps(settings, indent=1) + "\n")
     env = model.get_env()

@@ -31,3 +31,17 @@ def test_report_reads_every_run(tmp_path: Path, capsys) -> None:
     out = capsys.readouterr().out
     assert "trpo_plus: median 25 s; seed0: 20 s / 100,000 steps; seed1: 30 s / 150,000 steps" in out
     assert (tmp_path / "time_to_grasp.png").is_file()
+
+
+def test_the_machine_record_names_the_processor_model(tmp_path: Path) -> None:
+    """The CPU beside a measurement is the processor's model name where Linux gives it, the architecture otherwise."""
+    import platform
+
+    from benchmarks.machine import cpu_name
+
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text("processor\t: 0\nvendor_id\t: AuthenticAMD\nmodel name\t: AMD EPYC 9B14\nflags\t\t: fpu\n")
+    assert cpu_name(cpuinfo) == "AMD EPYC 9B14"
+    cpuinfo.write_text("processor\t: 0\n")
+    assert cpu_name(cpuinfo) == (platform.processor() or platform.machine())
+    assert cpu_name(tmp_path / "missing") == (platform.processor() or platform.machine())
