@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --upgrade pip
 	# CPU build of torch first (a local wheel); a later range that 2.13.0 satisfies installs nothing more
 	$(BIN)/pip install "torch==2.13.0"
-	$(BIN)/pip install -e ".[test,zoo,docs,ray]"
+	$(BIN)/pip install -e ".[test,zoo,docs,ray,bench]"
 	touch $(STAMP)
 
 install: $(STAMP)
