@@ -3,6 +3,7 @@
     python -m benchmarks.time_to_grasp --algo trpo_plus --seeds 0 1 2 3 4 --budget 300
     python -m benchmarks.time_to_grasp --algo ppo --seeds 0 1 2 3 4 --budget 300
     python -m benchmarks.time_to_grasp report            # table and plot of every folder under --out
+    python -m benchmarks.time_to_grasp report --compare trpo_plus_reuse trpo_plus_fast   # P(X > Y) with its interval
 
 Each (algorithm, seed) trains the recipe of ``--env`` (``make_model``: zoo_hyperparams/<algo>.yml on the batched
 engine, ``--sim-threads`` physics threads; ``--set key=value`` overrides a recipe key, the value a YAML scalar)
@@ -17,7 +18,9 @@ recipe on the learner's own batched envs. One CSV per run: ``<out>/<name>/seed<k
 
 ``report`` prints, per name, the median and every seed's training seconds (and env steps) to the first
 evaluation at or above 0.90, and whether it stays there to the end of the budget; the plot shows success against
-training wall-clock, one line per seed (``<out>/time_to_grasp.png``). Measure with nothing else running.
+training wall-clock, one line per seed (``<out>/time_to_grasp.png``); ``--compare X Y`` adds the probability that a
+run of folder X learns faster than one of folder Y, by the area under its success curve over env steps and over
+training seconds, with rliable's 95 % interval. Measure with nothing else running.
 """
 
 from __future__ import annotations
@@ -120,18 +123,71 @@ def first_at_target(rows: Sequence[dict[str, float]]) -> tuple[float, int, bool]
     return None
 
 
+def sample_area(rows: Sequence[dict[str, float]], max_steps: float) -> float:
+    """Learning speed in samples: the mean success over the evaluations at or before ``max_steps`` env steps (every
+    run of the benchmark evaluates at the same step counts, so runs compared up to one ``max_steps`` share them)."""
+    return float(np.mean([row["success"] for row in rows if row["timesteps"] <= max_steps]))
+
+
+def time_area(rows: Sequence[dict[str, float]], seconds: float) -> float:
+    """Learning speed in wall-clock: the mean over ``[0, seconds)`` of the success of the latest evaluation so far
+    (0 before the first), i.e. the area under the success-against-training-seconds step curve over ``seconds``."""
+    times = np.array([0.0] + [row["train_seconds"] for row in rows if row["train_seconds"] < seconds] + [seconds])
+    values = np.array([0.0] + [row["success"] for row in rows if row["train_seconds"] < seconds])
+    return float(np.sum(np.diff(times) * values) / seconds)
+
+
+def comparison_lines(runs: dict[str, dict[str, list[dict[str, float]]]], pairs: Sequence[tuple[str, str]]) -> list[str]:
+    """P(X > Y) with rliable's 95 % stratified-bootstrap interval for each pair of result folders, scored by the area
+    under success against env steps (over the steps every run of both reached) and against training seconds (over
+    the seconds every run of both trained)."""
+    from rliable import metrics
+
+    from benchmarks.report import interval_estimates
+
+    lines = ["| X > Y | seeds | P(X > Y), success area over env steps | P(X > Y), success area over training seconds |",
+             "|---|---|---|---|"]  # fmt: skip
+    for a, b in pairs:
+        for name in (a, b):
+            if name not in runs or not runs[name]:
+                raise ValueError(f"--compare {a} {b}: no runs of {name!r} (result folders: {sorted(runs)})")
+        both = [*runs[a].values(), *runs[b].values()]
+        max_steps = min(rows[-1]["timesteps"] for rows in both)
+        seconds = min(rows[-1]["train_seconds"] for rows in both)
+        cells = []
+        for score, limit, unit in (
+            (sample_area, max_steps, f"{max_steps / 1e6:.2f}M steps"),
+            (time_area, seconds, f"{seconds:.0f} s"),
+        ):
+            x = np.array([[score(rows, limit)] for rows in runs[a].values()])
+            y = np.array([[score(rows, limit)] for rows in runs[b].values()])
+            point, interval = interval_estimates({"pair": (x, y)}, metrics.probability_of_improvement)
+            low, high = float(np.squeeze(interval["pair"][0])), float(np.squeeze(interval["pair"][1]))
+            cells.append(f"{float(np.squeeze(point['pair'])):.2f} [{low:.2f}, {high:.2f}] (to {unit})")
+        lines.append(f"| {a} > {b} | {len(runs[a])} / {len(runs[b])} | {cells[0]} | {cells[1]} |")
+    return lines
+
+
 def read(path: Path) -> list[dict[str, float]]:
     with path.open() as file:
         return [{key: float(value) for key, value in row.items()} for row in csv.DictReader(file)]
 
 
-def report(out: Path) -> None:
+def report(
+    out: Path, pairs: Sequence[tuple[str, str]] = (), only: Sequence[str] = (), plot: str = "time_to_grasp.png"
+) -> None:
+    """Per result folder (``only`` these, where given) the median and every seed's time to the target, and the plot;
+    for each of ``pairs`` the probability that a run of the first folder learns faster than one of the second
+    (``comparison_lines``)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    names = sorted(folder for folder in out.iterdir() if folder.is_dir())
+    names = sorted(folder for folder in out.iterdir() if folder.is_dir() and (not only or folder.name in only))
+    missing = sorted(set(only) - {folder.name for folder in names})
+    if missing:
+        raise ValueError(f"no result folder {', '.join(missing)} under {out}")
     fig, axes = plt.subplots(1, max(len(names), 1), figsize=(5 * max(len(names), 1), 3.6), squeeze=False)
     for ax, folder in zip(axes[0], names, strict=False):
         runs = {path.stem: read(path) for path in sorted(folder.glob("seed*.csv"))}
@@ -149,8 +205,12 @@ def report(out: Path) -> None:
         ax.set_title(folder.name)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out / "time_to_grasp.png", dpi=110)
-    print(f"plot: {out / 'time_to_grasp.png'}")
+    fig.savefig(out / plot, dpi=110)
+    print(f"plot: {out / plot}")
+    if pairs:
+        folders = [folder for folder in out.iterdir() if folder.is_dir()]
+        all_runs = {folder.name: {path.stem: read(path) for path in sorted(folder.glob("seed*.csv"))} for folder in folders}
+        print("\n".join(comparison_lines(all_runs, pairs)))
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -167,10 +227,16 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--workers", default=None, metavar="BACKEND:N", help="collect with N rollout workers (make_model)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="recipe overrides (YAML values)")
     parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--compare", nargs=2, action="append", default=[], metavar=("X", "Y"),
+                        help="report: P(X > Y) between two result folders (repeatable)")  # fmt: skip
+    parser.add_argument("--only", nargs="+", default=[], metavar="NAME", help="report: these result folders only")
+    parser.add_argument("--plot", default="time_to_grasp.png", help="report: the plot's file name under --out")
     args = parser.parse_args(argv)
     if args.command == "report":
-        report(args.out)
+        report(args.out, [tuple(pair) for pair in args.compare], args.only, args.plot)
         return
+    if args.compare or args.only or args.plot != "time_to_grasp.png":
+        parser.error("--compare, --only and --plot are report options")
     overrides: dict[str, Any] = {}
     for pair in args.set:
         key, sep, text = pair.partition("=")

@@ -4,6 +4,8 @@ held it, and the report over runs."""
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # benchmarks/ is a package beside the installed ones
 from benchmarks import time_to_grasp  # noqa: E402
@@ -45,3 +47,37 @@ def test_the_machine_record_names_the_processor_model(tmp_path: Path) -> None:
     cpuinfo.write_text("processor\t: 0\n")
     assert cpu_name(cpuinfo) == (platform.processor() or platform.machine())
     assert cpu_name(tmp_path / "missing") == (platform.processor() or platform.machine())
+
+
+def test_success_areas_over_steps_and_over_seconds_by_hand() -> None:
+    rows = _rows([0.1, 0.5, 0.9, 0.96])  # evaluations at 50k ... 200k steps, 10 ... 40 s
+    assert time_to_grasp.sample_area(rows, 150_000) == 0.5  # (0.1 + 0.5 + 0.9) / 3
+    assert time_to_grasp.sample_area(rows, 200_000) == (0.1 + 0.5 + 0.9 + 0.96) / 4
+    # 0 until the first evaluation, then each evaluation's success until the next: (0 + 1 + 5 + 9) / 40
+    assert abs(time_to_grasp.time_area(rows, 40.0) - 0.375) < 1e-12
+    assert abs(time_to_grasp.time_area(rows, 35.0) - (1 + 5 + 4.5) / 35) < 1e-12  # the last step cut at 35 s
+
+
+def test_comparison_scores_both_folders_up_to_what_all_their_runs_reached(tmp_path: Path) -> None:
+    """Every run of X ahead of every run of Y: P = 1 with no resample reversing it; the areas run to the shortest run
+    of either folder (150k steps, 30 s here); a folder without runs is named."""
+    fast = {f"seed{k}": _rows([0.5, 0.9, 0.95, 0.97]) for k in range(3)}
+    slow = {f"seed{k}": _rows([0.0, 0.1, 0.3]) for k in range(3)}
+    lines = time_to_grasp.comparison_lines({"fast": fast, "slow": slow}, [("fast", "slow")])
+    assert lines[2] == ("| fast > slow | 3 / 3 | 1.00 [1.00, 1.00] (to 0.15M steps) | 1.00 [1.00, 1.00] (to 30 s) |")
+    reversed_lines = time_to_grasp.comparison_lines({"fast": fast, "slow": slow}, [("slow", "fast")])
+    assert "| slow > fast | 3 / 3 | 0.00 [0.00, 0.00]" in reversed_lines[2]
+    with pytest.raises(ValueError, match="no runs of 'missing'"):
+        time_to_grasp.comparison_lines({"fast": fast}, [("fast", "missing")])
+
+
+def test_report_of_named_folders_only(tmp_path: Path, capsys) -> None:
+    for name in ("shown", "hidden"):
+        (tmp_path / name).mkdir()
+        with (tmp_path / name / "seed0.csv").open("w") as file:
+            file.write("timesteps,train_seconds,eval_seconds,success,mean_return\n50000,10.0,1.0,0.95,0\n")
+    time_to_grasp.report(tmp_path, only=["shown"])
+    out = capsys.readouterr().out
+    assert "shown: median 10 s" in out and "hidden" not in out
+    with pytest.raises(ValueError, match="no result folder absent"):
+        time_to_grasp.report(tmp_path, only=["shown", "absent"])
