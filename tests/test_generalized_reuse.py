@@ -71,6 +71,25 @@ def test_save_load_keeps_the_memory_bit_exact(tmp_path: Path) -> None:
     assert loaded.reuse is not None and loaded.rollout_memory.maxlen == 3
 
 
+def test_with_vecnormalize_old_batches_are_stored_raw_and_normalised_with_todays_statistics() -> None:
+    """The memory keeps what the env returned (Pendulum's observation is on the unit circle before normalisation,
+    its rewards are costs); each update normalises an old batch with the statistics of that update, not of the
+    update that collected it."""
+    env = VecNormalize(make_vec_env("Pendulum-v1", n_envs=2, seed=0), norm_reward=True)
+    model = TRPOPlus("MlpPolicy", env, seed=0, sample_reuse="generalized", **TINY).learn(3 * 128)
+    oldest = model.rollout_memory[0]
+    raw = oldest.raw_observations
+    assert isinstance(raw, np.ndarray)
+    np.testing.assert_allclose(np.hypot(raw[..., 0], raw[..., 1]), 1.0, rtol=1e-5)
+    assert np.all(oldest.raw_rewards <= 0)
+    evaluation = model._reevaluate(oldest)
+    n_steps, n_envs = oldest.raw_rewards.shape
+    today = env.normalize_obs(raw[:n_steps].reshape(n_steps * n_envs, -1)).astype(np.float32)
+    np.testing.assert_array_equal(evaluation.observations, today)
+    model.learn(128, reset_num_timesteps=False)  # the statistics move on: the same batch, normalised anew
+    assert not np.allclose(model._reevaluate(oldest).observations, today)
+
+
 @pytest.mark.parametrize("collector", ["workers", "batched"])
 def test_every_collection_path_learns(collector: str) -> None:
     if collector == "workers":
