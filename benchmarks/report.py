@@ -37,6 +37,7 @@ from benchmarks.protocol import (
 )
 from benchmarks.runs import job_folder, read_progress, read_reevaluation
 from benchmarks.study import (
+    BUDGET_COMPARISONS,
     BUDGETS,
     COMPARISONS,
     LABELS,
@@ -47,6 +48,7 @@ from benchmarks.study import (
     TARGET_WITHIN,
     TARGETS,
     VARIANTS,
+    BudgetComparison,
     hyperparameters,
 )
 from grasp_envs import RECOMMENDED_GRASPER
@@ -98,7 +100,15 @@ def _curve(rows: list[dict[str, float]], key: str, grid: np.ndarray) -> np.ndarr
     return np.interp(grid, steps, np.array([start] + [row[key] for row in rows]))
 
 
-def figure(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]], path: Path) -> None:
+def figure(
+    env_id: str,
+    runs: dict[str, dict[int, list[dict[str, float]]]],
+    path: Path,
+    budget: float | None = None,
+    labels: dict[str, str] | None = None,
+) -> None:
+    """Learning curves of ``runs`` ({variant: {seed: rows}}) over ``budget`` env steps (by default the env's), each
+    named by ``labels`` (by default the variants' study labels)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -107,14 +117,15 @@ def figure(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]], path
     shown = sum(1 for seeds in runs.values() if seeds)
     legend = 0.18 * shown + 0.2  # inches below the plots: one line per variant, so that long labels never cover a curve
     fig, axes = plt.subplots(1, 2, figsize=(11, 4 + legend))
-    grid = np.linspace(0, BUDGETS[env_id], 101)
+    grid = np.linspace(0, BUDGETS[env_id] if budget is None else budget, 101)
+    labels = LABELS if labels is None else labels
     colors = [plt.get_cmap("tab10")(i) for i in range(10)]
     for i, (variant, seeds) in enumerate((v, s) for v, s in runs.items() if s):
         color, style = colors[i % 10], ("-", "--", ":")[i // 10 % 3]  # past ten variants the colours repeat dashed
         for ax, key in zip(axes, ("eval_return", "eval_success"), strict=True):
             curves = np.array([_curve(rows, key, grid) for rows in seeds.values()])
             mean, std = curves.mean(axis=0), curves.std(axis=0)
-            ax.plot(grid, mean, color=color, linestyle=style, label=f"{LABELS[variant]} ({len(seeds)})")
+            ax.plot(grid, mean, color=color, linestyle=style, label=f"{labels[variant]} ({len(seeds)})")
             ax.fill_between(grid, mean - std, mean + std, color=color, alpha=0.2)
     axes[0].set_ylabel(f"evaluation return ({EVAL_EPISODES} episodes)")
     axes[1].set_ylabel("evaluation success rate")
@@ -421,6 +432,70 @@ def improvement_section(
     return lines
 
 
+def runs_within(out: Path, env_id: str, variant: str, budget: int) -> dict[int, list[dict[str, float]]]:
+    """{seed: rows} of the runs of (env, variant) that reached ``budget``, each cut to its evaluations within it
+    (``_evaluations_within``), in the order of the seeds."""
+    runs = {}
+    for folder in sorted((out / env_id / variant).glob("seed*"), key=lambda f: int(f.name[4:])):
+        rows = read_progress(folder)
+        if rows and rows[-1]["timesteps"] >= budget:
+            runs[int(folder.name[4:])] = rows[: _evaluations_within(rows, budget)]
+    return runs
+
+
+def median_steps(rows_by_seed: Sequence[list[dict[str, float]]], target: float) -> float:
+    """The median over seeds of the env steps to the first evaluation at ``target``, a seed that never reached it
+    counting as infinitely many (so that the median is infinite once half the seeds never reached it)."""
+    return float(np.median([np.nan_to_num(steps_to_target(rows, target)[0], nan=np.inf) for rows in rows_by_seed]))
+
+
+def budget_comparison_section(out: Path, comparison: BudgetComparison, image: Path, page: Path) -> list[str]:
+    """study.yml's budget comparison: both sides' runs cut to ``comparison.budget`` steps (a table, their learning
+    curves in ``image``), the ratio of their median steps to the target, and P(variant > baseline) by the success area
+    with rliable's 95 % interval, over as many seeds of each as both have (the first, in seed order)."""
+    from rliable import metrics
+
+    sides = {"variant": (comparison.env, comparison.variant), "baseline": (comparison.baseline_env, comparison.baseline)}
+    runs = {side: runs_within(out, env_id, name, comparison.budget) for side, (env_id, name) in sides.items()}
+    labels = {side: f"{LABELS[name]} on {env_id}" for side, (env_id, name) in sides.items()}
+    budget, target = comparison.budget, TARGETS[comparison.env]
+    if not all(runs.values()):
+        missing = [labels[side] for side, seeds in runs.items() if not seeds]
+        return [f"No run to {_steps(budget)} yet of {' and of '.join(missing)}."]
+    figure(comparison.env, runs, image, budget=budget, labels=labels)
+    lines = [
+        f"Both sides' runs cut at {budget:,} env steps (their evaluations within it).",
+        "",
+        f"![learning curves to {_steps(budget)}]({Path(os.path.relpath(image, page.parent)).as_posix()})",
+        "",
+        f"| variant | seeds | success at {_steps(budget)} | success area to {_steps(budget)} | steps to {target:.0%} | "
+        f"train time to {target:.0%} |",
+        "|---|---|---|---|---|---|",
+    ]
+    for side, seeds in runs.items():
+        rows = list(seeds.values())
+        reached = [steps_to_target(r, target) for r in rows]
+        lines.append(
+            f"| {labels[side]} | {_seed_ranges(list(seeds))} | {_fmt([r[-1]['eval_success'] for r in rows])} | "
+            f"{_fmt([success_score(r, 'area') for r in rows])} | {_median_reached([s for s, _ in reached], 1e6, 'M')} | "
+            f"{_median_reached([t for _, t in reached], 1, 's')} |"
+        )
+    medians = {side: median_steps(list(seeds.values()), target) for side, seeds in runs.items()}
+    n = min(len(seeds) for seeds in runs.values())
+    scores = tuple(np.array([[success_score(rows, "area")] for rows in list(runs[side].values())[:n]]) for side in sides)
+    point, interval = interval_estimates({"pair": scores}, metrics.probability_of_improvement)
+    low, high = (float(np.squeeze(bound)) for bound in interval["pair"])
+    ratio = medians["variant"] / medians["baseline"] if np.isfinite(medians["baseline"]) else float("nan")
+    return [
+        *lines,
+        "",
+        f"Median steps to {target:.0%} over every seed (a seed that never reached it counts as never): "
+        f"{medians['variant'] / 1e6:.2f}M against {medians['baseline'] / 1e6:.2f}M, {ratio:.2f} times the baseline's. "
+        f"P(the first > the second), success area to {_steps(budget)}, over the first {n} seeds of each: "
+        f"{float(np.squeeze(point['pair'])):.2f} [{low:.2f}, {high:.2f}] (rliable, 2,000 resamples).",
+    ]
+
+
 def anchor(heading: str) -> str:
     """The id the docs give a heading (Python-Markdown's toc slugify, which mkdocs uses)."""
     text = unicodedata.normalize("NFKD", heading).encode("ascii", "ignore").decode("ascii")
@@ -521,6 +596,12 @@ def write_report(out: Path, docs: Path, tables_page: Path | None = None) -> None
     body += ["## Generalized sample reuse", "", *section, ""]
     aggregates.append(("generalized sample reuse on every task, success or return", "Generalized sample reuse, every task"))
     body += ["## Generalized sample reuse, every task", "", *improvement_section(all_runs, REUSE_PAIRS), ""]
+    for i, comparison in enumerate(BUDGET_COMPARISONS):  # study.yml's, across env ids or budgets
+        heading = (f"{LABELS[comparison.variant]} on {comparison.env} against {LABELS[comparison.baseline]} on "
+                   f"{comparison.baseline_env}, to {_steps(comparison.budget)}")  # fmt: skip
+        aggregates.append((heading, heading))
+        image = images / f"results_budget_comparison_{i}.png"
+        body += [f"## {heading}", "", *budget_comparison_section(out, comparison, image, tables_page), ""]
     for env_id, runs in all_runs.items():  # the envs with 10 seeds of every study variant, on their own
         if min(len(runs.get(v, {})) for v in STUDY_VARIANTS) >= 10:
             pairs = [(comparison.variant, comparison.baseline) for comparison in COMPARISONS]  # study.yml's

@@ -91,11 +91,24 @@ class Comparison:
 
 
 @dataclass(frozen=True)
+class BudgetComparison:
+    """P(``variant`` on ``env`` > ``baseline`` on ``baseline_env``) by the success area over the first ``budget`` env
+    steps of each run: two variants of one task whose runs are filed under different env ids (or budgets)."""
+
+    variant: str
+    env: str
+    baseline: str
+    baseline_env: str
+    budget: int
+
+
+@dataclass(frozen=True)
 class Study:
     envs: dict[str, EnvSettings]
     variants: dict[str, Variant]
     study_variants: list[str]
     comparisons: list[Comparison] = field(default_factory=list)
+    budget_comparisons: list[BudgetComparison] = field(default_factory=list)
 
 
 class StudyError(ValueError):
@@ -111,7 +124,8 @@ def load_study(path: str | Path = STUDY_FILE) -> Study:
     if unknown := [name for name in study_variants if name not in variants]:
         raise StudyError(f"{path}: study_variants names no variant {unknown}")
     comparisons = [_comparison(entry, variants, path) for entry in data.get("comparisons") or []]
-    return Study(envs, variants, study_variants, comparisons)
+    budget_comparisons = [_budget_comparison(entry, envs, variants, path) for entry in data.get("budget_comparisons") or []]
+    return Study(envs, variants, study_variants, comparisons, budget_comparisons)
 
 
 def _comparison(entry: Any, variants: Mapping[str, Variant], path: str | Path) -> Comparison:
@@ -120,6 +134,33 @@ def _comparison(entry: Any, variants: Mapping[str, Variant], path: str | Path) -
     if unknown := [name for name in (entry["variant"], entry["baseline"]) if name not in variants]:
         raise StudyError(f"{path}: comparison {entry!r} names no variant {unknown}")
     return Comparison(entry["variant"], entry["baseline"])
+
+
+def _budget_comparison(
+    entry: Any, envs: Mapping[str, EnvSettings], variants: Mapping[str, Variant], path: str | Path
+) -> BudgetComparison:
+    form = "{variant: {env: <id>, name: <variant>}, baseline: {env: <id>, name: <variant>}, budget: <env steps>}"
+    sides = ("variant", "baseline")
+    if (
+        not isinstance(entry, Mapping)
+        or set(entry) != {*sides, "budget"}
+        or not all(isinstance(entry[side], Mapping) and set(entry[side]) == {"env", "name"} for side in sides)
+    ):
+        raise StudyError(f"{path}: a budget comparison is {form}, got {entry!r}")
+    budget = entry["budget"]
+    for side in sides:
+        env_id, name = entry[side]["env"], entry[side]["name"]
+        if name not in variants:
+            raise StudyError(f"{path}: budget comparison {entry!r} names no variant {name!r}")
+        if env_id not in envs or envs[env_id].target is None:
+            raise StudyError(f"{path}: budget comparison {entry!r}: {env_id!r} is no study env with a success target")
+        if isinstance(budget, bool) or not isinstance(budget, int) or not 0 < budget <= envs[env_id].budget:
+            raise StudyError(f"{path}: budget comparison {entry!r}: budget must be an int within {env_id}'s budget")
+    if envs[entry["variant"]["env"]].target != envs[entry["baseline"]["env"]].target:
+        raise StudyError(f"{path}: budget comparison {entry!r}: the two envs' success targets differ")
+    return BudgetComparison(
+        entry["variant"]["name"], entry["variant"]["env"], entry["baseline"]["name"], entry["baseline"]["env"], budget
+    )
 
 
 def _env_settings(env_id: str, settings: Mapping[str, Any]) -> EnvSettings:
@@ -225,6 +266,7 @@ TARGET_WITHIN = {env_id: env.target_within for env_id, env in ENVS.items()}
 TARGET_HELD = {env_id for env_id, env in ENVS.items() if env.target_held}
 LABELS = {name: variant.label for name, variant in VARIANTS.items()}
 COMPARISONS = STUDY.comparisons
+BUDGET_COMPARISONS = STUDY.budget_comparisons
 
 
 # ---------------------------------------------------------------------------------------------- settings

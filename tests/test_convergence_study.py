@@ -835,6 +835,7 @@ def test_the_report_writes_the_tables_page_whole_and_only_the_block_of_the_resul
     monkeypatch.setattr(report, "BUDGETS", {"Reacher2D-v0": 300_000, "Reacher3D-v0": 1_000_000})
     monkeypatch.setattr(report, "rliable_section", lambda *args, **kwargs: ["(aggregates)"])
     monkeypatch.setattr(report, "improvement_section", lambda *args, **kwargs: ["(improvement)"])
+    monkeypatch.setattr(report, "BUDGET_COMPARISONS", [])
     monkeypatch.setattr(report, "ROOT", tmp_path)  # no trained_agents/: no agents section
     report.write_report(out, findings)
     tables = (docs / "results-tables.md").read_text()
@@ -884,3 +885,92 @@ def test_a_task_without_a_success_flag_is_tabled_by_its_return() -> None:
 
 def _mean_std(a: float, b: float) -> str:
     return f"{np.mean([a, b]):.0f} ± {np.std([a, b]):.0f}"
+
+
+def _write_run(out: Path, env_id: str, variant: str, seed: int, evaluations: list[tuple[int, float, float]]) -> None:
+    """A run's progress.csv: (timesteps, training seconds, evaluation success) per evaluation."""
+    folder = runs.job_folder(out, env_id, variant, seed)
+    folder.mkdir(parents=True)
+    lines = ["timesteps,train_seconds,eval_success,eval_return", *(f"{t},{s},{x},0.0" for t, s, x in evaluations)]
+    (folder / "progress.csv").write_text("\n".join(lines) + "\n")
+
+
+def test_a_budget_comparison_cuts_both_sides_at_its_budget_by_hand(tmp_path: Path) -> None:
+    """study.yml's budget comparison, by hand: runs cut at 2M (a 5M run's later evaluations left out, a run short of
+    2M not counted), the table's medians over the seeds that reached 90 % and the ratio's over every seed, a seed
+    that never reached it counting as never (1.5M against median(never, 2M, 1M) = 2M: 0.75 times), and P(X > Y) on
+    the success area over the first two seeds of each (the baseline's third left out)."""
+    comparison = study.BudgetComparison("recipe_generalized_reuse", "Grasper3D-v7",
+                                        "warm_scripted25_late_ready_cg25_g098", "Grasper3D-v6", 2_000_000)  # fmt: skip
+    reuse, recipe = comparison.variant, comparison.baseline
+    _write_run(tmp_path, "Grasper3D-v7", reuse, 0, [(1_000_000, 50, 0.9), (2_000_000, 100, 1.0)])  # area 0.95
+    _write_run(tmp_path, "Grasper3D-v7", reuse, 1, [(1_000_000, 50, 0.5), (2_000_000, 100, 0.9)])  # 0.7
+    _write_run(tmp_path, "Grasper3D-v7", reuse, 2, [(1_000_000, 50, 1.0)])  # short of 2M: left out
+    _write_run(tmp_path, "Grasper3D-v6", recipe, 0, [(1_000_000, 60, 0.3), (2_000_000, 120, 0.5), (5_000_000, 300, 1.0)])
+    _write_run(tmp_path, "Grasper3D-v6", recipe, 1, [(1_000_000, 60, 0.2), (2_000_000, 120, 0.9)])  # 0.55
+    _write_run(tmp_path, "Grasper3D-v6", recipe, 2, [(1_000_000, 60, 1.0), (2_000_000, 120, 1.0)])  # third: not in P
+    image = tmp_path / "docs" / "images" / "comparison.png"
+    lines = report.budget_comparison_section(tmp_path, comparison, image, tmp_path / "docs" / "tables.md")
+    assert image.exists() and lines[2] == "![learning curves to 2M](images/comparison.png)"
+    reuse_label, recipe_label = (f"{report.LABELS[reuse]} on Grasper3D-v7", f"{report.LABELS[recipe]} on Grasper3D-v6")
+    assert lines[6:8] == [
+        f"| {reuse_label} | 0-1 | 0.95 ± 0.05 | 0.82 ± 0.12 | 1.50M (2/2) | 75s (2/2) |",
+        f"| {recipe_label} | 0-2 | 0.80 ± 0.22 | 0.65 ± 0.25 | 1.50M (2/3) | 90s (2/3) |",  # of those that reached it
+    ]
+    assert lines[-1] == (
+        "Median steps to 90% over every seed (a seed that never reached it counts as never): 1.50M against 2.00M, "
+        "0.75 times the baseline's. P(the first > the second), success area to 2M, over the first 2 seeds of each: "
+        + lines[-1].split("each: ")[1]
+    )
+    assert re.search(r"each: 1\.00 \[1\.00, 1\.00\] \(rliable", lines[-1])  # 0.95, 0.7 against 0.4, 0.55: all ahead
+    (tmp_path / "Grasper3D-v7" / reuse / "seed0" / "progress.csv").unlink()
+    (tmp_path / "Grasper3D-v7" / reuse / "seed1" / "progress.csv").unlink()
+    assert report.budget_comparison_section(tmp_path, comparison, image, tmp_path / "tables.md") == [
+        f"No run to 2M yet of {reuse_label}."
+    ]
+
+
+def test_the_budget_comparisons_compare_one_task() -> None:
+    """Each of study.yml's budget comparisons trains and evaluates both sides on the same task: the same env class,
+    episode length and options (the registered preset's with the variant's env_kwargs) and the same success target."""
+    from grasp_envs.registration import PRESETS
+
+    assert study.BUDGET_COMPARISONS
+    for comparison in study.BUDGET_COMPARISONS:
+        tasks = []
+        for env_id, name in ((comparison.env, comparison.variant), (comparison.baseline_env, comparison.baseline)):
+            preset, config = PRESETS[env_id], study.settings(VARIANTS[name], env_id)
+            tasks.append((preset.entry_point, preset.max_episode_steps, preset.kwargs | config.env_kwargs))
+        assert tasks[0] == tasks[1], comparison
+        assert study.TARGETS[comparison.env] == study.TARGETS[comparison.baseline_env]
+
+
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        ({"variant": {"env": "Grasper3D-v7", "name": "plain"}, "budget": 10}, "a budget comparison is"),
+        ({"variant": {"env": "Grasper3D-v7"}, "baseline": {"env": "Grasper3D-v6", "name": "plain"}, "budget": 10},
+         "a budget comparison is"),
+        ({"variant": {"env": "Grasper3D-v7", "name": "nope"}, "baseline": {"env": "Grasper3D-v6", "name": "plain"},
+          "budget": 10}, "names no variant 'nope'"),
+        ({"variant": {"env": "Hopper-v5", "name": "plain"}, "baseline": {"env": "Grasper3D-v6", "name": "plain"},
+          "budget": 10}, "'Hopper-v5' is no study env with a success target"),
+        ({"variant": {"env": "Reacher2D-v0", "name": "plain"}, "baseline": {"env": "Reacher2D-v1", "name": "plain"},
+          "budget": 400_000}, "budget must be an int within Reacher2D-v0's budget"),
+        ({"variant": {"env": "Reacher2D-v0", "name": "plain"}, "baseline": {"env": "Reacher2D-v1", "name": "plain"},
+          "budget": 1e5}, "budget must be an int"),
+        ({"variant": {"env": "Reacher2D-v0", "name": "plain"}, "baseline": {"env": "Reacher2D-v1", "name": "plain"},
+          "budget": True}, "budget must be an int"),
+        ({"variant": {"env": "Reacher2D-v0", "name": "plain"}, "baseline": {"env": "WallReacher3D-v0", "name": "plain"},
+          "budget": 100}, "the two envs' success targets differ"),
+    ],
+)  # fmt: skip
+def test_a_malformed_budget_comparison_is_refused_naming_the_problem(tmp_path: Path, entry: dict, message: str) -> None:
+    import yaml
+
+    data = yaml.safe_load(study.STUDY_FILE.read_text())
+    data["budget_comparisons"] = [entry]
+    path = tmp_path / "study.yml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(StudyError, match=re.escape(message)):
+        study.load_study(path)
