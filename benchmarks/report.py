@@ -530,6 +530,16 @@ def tables_header(findings: str = "results.md") -> list[str]:
         " its total train time (mean ± std over seeds); the target, seed by seed; the per-update diagnostics. Then the"
         " rliable aggregates.",
         "",
+        "The diagnostics: `kl_overshoot`, the largest KL between successive policies among the updates between two"
+        " evaluations over `target_kl` (generalized reuse steps within its own radius, `target_kl / B²`, a quarter of"
+        " it at B = 2, or less with `reuse_kl_vary`); `line_search_steps`, the backtracking line search's tries per"
+        " update (1: the full step); `cg_residual` and `cg_relative_residual`, the conjugate gradient's final residual"
+        " ‖Fx - g‖ and that over ‖g‖; `step_gradient_cosine`, the cosine between the step and the gradient;"
+        " `warm_start_cosine`, between the warm start and the step; `replay_ess`, Kish's effective sample size of the"
+        " surrogate's sample weights over the number of samples (the batch weights times the importance ratios under"
+        " generalized reuse, 0.83 at B = 2 when every ratio is 1; the replayed samples' importance weights under the"
+        " replay memory; 1: on-policy).",
+        "",
     ]
 
 
