@@ -22,6 +22,7 @@ from sb3_trpo_plus.zoo import (
     algorithms,
     check_wrappers,
     load_hyperparameters,
+    parse_policy_kwargs,
 )
 
 if TYPE_CHECKING:
@@ -83,6 +84,8 @@ def make_model(
     if vec_env == "batch" and not has_batch_engine(env_id):
         raise ValueError(f"vec_env='batch' runs the tasks of grasp_envs ({', '.join(batch_engine_ids())}), got {env_id!r}")
     params = {**recipe(env_id, algo), **overrides}
+    if "policy_kwargs" in overrides:  # as the YAML's: checked keys, activation names ("tanh") as classes
+        params["policy_kwargs"] = parse_policy_kwargs(overrides["policy_kwargs"], f"make_model({env_id!r})")
     recipe_workers = params.get("rollout_workers")
     if workers is None and recipe_workers is not None:
         if vec_env != "auto":

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import torch as th
 import yaml
 
 from grasp_envs.registration import RECOMMENDED_GRASPER
@@ -262,3 +263,19 @@ def test_make_model_overrides_run_keys_and_keeps_rl_zoos_discount_and_schedules(
     env = model.get_env()
     assert isinstance(env, VecNormalize) and env.num_envs == 2 and env.gamma == model.gamma == 0.9
     assert model.lr_schedule(1.0) == pytest.approx(1e-3) and model.lr_schedule(0.5) == pytest.approx(5e-4)
+
+
+def test_make_model_reads_policy_kwargs_overrides_as_the_yaml() -> None:
+    from sb3_trpo_plus import make_model
+    from sb3_trpo_plus.zoo import HyperparameterError
+
+    kwargs = {"net_arch": [8, 8], "activation_fn": "tanh", "log_std_init": -0.5}
+    model = make_model("Reacher2D-v1", seed=0, n_envs=1, n_steps=16, batch_size=16, policy_kwargs=kwargs)
+    assert isinstance(model.policy.mlp_extractor.policy_net[1], th.nn.Tanh)
+    assert model.policy.log_std.detach().tolist() == [-0.5, -0.5]
+    model = make_model("Reacher2D-v1", n_envs=1, n_steps=16, batch_size=16, policy_kwargs="dict(activation_fn=nn.ReLU)")
+    assert isinstance(model.policy.mlp_extractor.policy_net[1], th.nn.ReLU)
+    with pytest.raises(HyperparameterError, match=r"make_model\('Reacher2D-v1'\): unknown activation_fn 'swish'"):
+        make_model("Reacher2D-v1", n_envs=1, policy_kwargs={"activation_fn": "swish"})
+    with pytest.raises(HyperparameterError, match="unknown policy_kwargs key 'net_size'"):
+        make_model("Reacher2D-v1", n_envs=1, policy_kwargs={"net_size": 8})

@@ -45,3 +45,13 @@ def test_enjoy_finds_the_shipped_agent_without_a_folder(env_id: str, tmp_path: P
     assert _default_folder("trpo_plus", env_id) == str(TRAINED_AGENTS)
     (tmp_path / "logs" / "trpo_plus" / f"{env_id}_1").mkdir(parents=True)
     assert _default_folder("trpo_plus", env_id) == "logs"
+
+
+def test_held_out_evaluation_of_a_shipped_agent_is_reproducible() -> None:
+    from benchmarks.held_out import held_out
+
+    run = TRAINED_AGENTS / "trpo_plus" / "Reacher3D-v0_1"
+    first = held_out(run, None, 5, 30_000)
+    assert first == held_out(run, "Reacher3D-v0", 5, 30_000)  # episode k reset with seed 30,000 + k, whatever ran before
+    assert first["episodes"] == 5 and first["eval_seed"] == 30_000
+    assert first["successes"] == 5 and first["success_rate"] == 1.0  # the agent reaches on 100 of 100 (docs)
