@@ -25,27 +25,27 @@ def _raw_entry(algo: str, env_id: str) -> dict[str, Any]:
 
 
 def test_recommended_grasper_yaml_is_the_shipped_agents_config() -> None:
-    """The shipped agent was trained with the YAML's recipe, collected synchronously (agents.json names the command):
-    its config.yml and the hyperparameters saved in its model zip (read as plain data, nothing unpickled) equal the
-    YAML entry but for how it collects."""
+    """The shipped agent is the run of the README's command, the YAML's recipe as it stands (agents.json names the
+    command): its config.yml and the hyperparameters saved in its model zip (read as plain data, nothing unpickled)
+    equal the YAML entry."""
     from sb3_trpo_plus.agents import read_model_data
 
     entry = _raw_entry("trpo_plus", RECOMMENDED_GRASPER)
-    collection = {"rollout_workers": "process:1", "overlap_collection": True}
-    assert {key: entry.pop(key) for key in collection} == collection
     config = json.loads((AGENT / RECOMMENDED_GRASPER / "config.yml").read_text())
     assert config == entry
     manifest = json.loads((AGENT.parent.parent / "agents.json").read_text())[RECOMMENDED_GRASPER]
-    assert manifest["command"].endswith("--hyperparams rollout_workers:None overlap_collection:False")
+    assert manifest["command"] == f"trpo-plus train --env {RECOMMENDED_GRASPER} --seed 0 --sim-threads 2 --num-threads 1"
+    assert manifest["command"] in (ROOT / "README.md").read_text()
     saved = read_model_data(AGENT / f"{RECOMMENDED_GRASPER}.zip")
-    assert not saved.get("overlap_collection", False)
     algorithm_keys = {"n_steps", "batch_size", "gamma", "gae_lambda", "cg_max_steps", "cg_damping", "n_critic_updates",
-                      "replay_memory", "cg_warm_start", "sample_reuse", "reuse_batches", "fisher_sub_sampling"}  # fmt: skip
+                      "replay_memory", "cg_warm_start", "sample_reuse", "reuse_batches", "fisher_sub_sampling",
+                      "overlap_collection"}  # fmt: skip
     assert algorithm_keys <= set(entry)
     for key in algorithm_keys:
         assert saved[key] == entry[key], key
     assert saved["n_envs"] == entry["n_envs"]
     assert entry["env_wrapper"] == [{SCRIPTED_STARTS: {"probability": 0.25, "steps": [50, 100]}}]
+    assert entry["policy_kwargs"]["log_std_init"] == -1.0
 
 
 @pytest.mark.parametrize(
