@@ -16,11 +16,13 @@ as ``make_model``'s) a segment the workers collect while the learner updates (``
 on the training clock before each evaluation; ``--set rollout_workers=null overlap_collection=false`` trains the
 recipe on the learner's own batched envs. One CSV per run: ``<out>/<name>/seed<k>.csv`` (``--name``: default the algorithm).
 
-``report`` prints, per name, the median and every seed's training seconds (and env steps) to the first
-evaluation at or above 0.90, and whether it stays there to the end of the budget; the plot shows success against
-training wall-clock, one line per seed (``<out>/time_to_grasp.png``); ``--compare X Y`` adds the probability that a
-run of folder X learns faster than one of folder Y, by the area under its success curve over env steps and over
-training seconds, with rliable's 95 % interval. Measure with nothing else running.
+Each run's JSON keeps its env steps per training second and the medians of the per-iteration update time and
+rollout-worker timings (``PHASES``). ``report`` prints, per name, the median env steps/s, the median and every
+seed's training seconds (and env steps) to the first evaluation at or above 0.90, and whether it stays there to the
+end of the budget; the plot shows success against training wall-clock, one line per seed
+(``<out>/time_to_grasp.png``); ``--compare X Y`` adds the probability that a run of folder X learns faster than one
+of folder Y, by the area under its success curve over env steps and over training seconds, with rliable's 95 %
+interval. Measure with nothing else running.
 """
 
 from __future__ import annotations
@@ -44,6 +46,31 @@ OUT = ROOT / "benchmarks" / "results" / "time_to_grasp"
 EVAL_SEED = 1_000_000
 TARGET = 0.90
 FIELDS = ("timesteps", "train_seconds", "eval_seconds", "success", "mean_return")
+PHASES = ("train/update_time", "workers/collect_steps_per_s", "workers/wait_ms")
+"""Logged per iteration (TRPOPlus; rollout workers) and kept as medians in each run's JSON: where the time goes."""
+
+
+def plain(value: Any) -> str:
+    """A recipe's parsed value as JSON text: a class (an activation function, a wrapper) by its import path."""
+    return f"{value.__module__}.{value.__qualname__}" if isinstance(value, type) else str(value)
+
+
+def phase_recorder(phases: dict[str, list[float]]) -> Any:
+    """A callback that appends, at the end of every rollout, the ``PHASES`` the logger holds then (the last update's
+    time, the collection's worker timings) to ``phases``."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class PhaseRecorder(BaseCallback):
+        def _on_step(self) -> bool:
+            return True
+
+        def _on_rollout_end(self) -> None:
+            for key in PHASES:
+                value = self.logger.name_to_value.get(key)
+                if value is not None:
+                    phases.setdefault(key, []).append(float(value))
+
+    return PhaseRecorder()
 
 
 def evaluate_held_out(model: Any, env_id: str, episodes: int, statistics: Any) -> tuple[float, float]:
@@ -83,10 +110,12 @@ def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any
     path = folder / f"seed{seed}.csv"
     statistics = model.get_vec_normalize_env()
     rows: list[dict[str, Any]] = []
+    phases: dict[str, list[float]] = {}
+    recorder = phase_recorder(phases)
     trained = 0.0
     while trained < args.budget:
         start = time.perf_counter()
-        model.learn(args.eval_every, reset_num_timesteps=not rows)
+        model.learn(args.eval_every, reset_num_timesteps=not rows, callback=recorder)
         if pool is not None:  # a segment ordered during the last update is collected on the training clock
             pool[0].wait_segments()
         trained += time.perf_counter() - start
@@ -104,9 +133,12 @@ def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any
                 "eval_episodes": args.eval_episodes, "sim_threads": args.sim_threads,
                 "workers": args.workers or {**recipe(args.env, algo), **overrides}.get("rollout_workers"),
                 "overrides": overrides,
+                "recipe": {**recipe(args.env, algo), **overrides},
+                "env_steps_per_s": round(model.num_timesteps / trained),
+                "phase_medians": {key: round(float(np.median(values)), 4) for key, values in phases.items()},
                 "machine": {"cpu": cpu_name(), "python": platform.python_version(),
                             "torch": th.__version__}}  # fmt: skip
-    (folder / f"seed{seed}.json").write_text(json.dumps(settings, indent=1) + "\n")
+    (folder / f"seed{seed}.json").write_text(json.dumps(settings, indent=1, default=plain) + "\n")
     env = model.get_env()
     if env is not None:
         env.close()
@@ -196,7 +228,9 @@ def report(
         cells = [f"{seed}: {r[0]:.0f} s / {r[1]:,} steps{'' if r[2] else ' (not held)'}" if r else f"{seed}: not reached"
                  for seed, r in reached.items()]  # fmt: skip
         median = f"{np.median(times):.0f} s" if len(times) == len(runs) and times else "not every seed reached it"
-        print(f"{folder.name}: median {median}; " + "; ".join(cells))
+        speeds = [rows[-1]["timesteps"] / rows[-1]["train_seconds"] for rows in runs.values() if rows]
+        speed = f"{np.median(speeds) / 1e3:.1f}k" if speeds else "no"
+        print(f"{folder.name} ({speed} env steps/s): median {median}; " + "; ".join(cells))
         for seed, rows in runs.items():
             ax.plot([r["train_seconds"] for r in rows], [r["success"] for r in rows], marker=".", label=seed)
         ax.axhline(TARGET, color="k", linestyle=":", linewidth=1)

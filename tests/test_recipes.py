@@ -148,7 +148,7 @@ def test_make_model_builds_the_recipe_in_python() -> None:
     model = make_model(RECOMMENDED_GRASPER, seed=3, n_steps=16, batch_size=16)
     try:
         assert isinstance(model, TRPOPlus) and model.n_steps == 16 and model.seed == 3 and model.overlap_collection
-        assert (model.gamma, model.cg_max_steps, model.cg_warm_start) == (params["gamma"], 25, True)
+        assert (model.gamma, model.cg_max_steps, model.cg_warm_start) == (params["gamma"], params["cg_max_steps"], True)
         env = model.get_env()
         assert isinstance(env, VecNormalize) and env.num_envs == params["n_envs"] and env.gamma == params["gamma"]
         assert isinstance(env.venv, ProcessRollouts) and env.venv.num_workers == 1

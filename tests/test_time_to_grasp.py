@@ -31,8 +31,26 @@ def test_report_reads_every_run(tmp_path: Path, capsys) -> None:
                 file.write(f"{row['timesteps']},{row['train_seconds']},1.0,{row['success']},0\n")
     time_to_grasp.report(tmp_path)
     out = capsys.readouterr().out
-    assert "trpo_plus: median 25 s; seed0: 20 s / 100,000 steps; seed1: 30 s / 150,000 steps" in out
+    # env steps/s: the median over runs of steps / training seconds at the last evaluation (150,000 / 30 s)
+    assert "trpo_plus (5.0k env steps/s): median 25 s; seed0: 20 s / 100,000 steps; seed1: 30 s / 150,000 steps" in out
     assert (tmp_path / "time_to_grasp.png").is_file()
+
+
+def test_the_phase_recorder_keeps_what_the_logger_holds_at_each_rollout_end() -> None:
+    """Per rollout, the last update's time and the workers' timings as logged; keys not logged are left out."""
+    from stable_baselines3.common.logger import Logger
+
+    phases: dict[str, list[float]] = {}
+    recorder = time_to_grasp.phase_recorder(phases)
+    logger = Logger(folder=None, output_formats=[])
+    recorder.model = type("Model", (), {"logger": logger})()  # what init_callback gives the callback to read
+    logger.record("train/update_time", 0.5)
+    logger.record("workers/wait_ms", 80.0)
+    logger.record("train/value_loss", 3.0)
+    recorder.on_rollout_end()
+    logger.record("train/update_time", 0.25)
+    recorder.on_rollout_end()
+    assert phases == {"train/update_time": [0.5, 0.25], "workers/wait_ms": [80.0, 80.0]}
 
 
 def test_the_machine_record_names_the_processor_model(tmp_path: Path) -> None:
@@ -78,6 +96,6 @@ def test_report_of_named_folders_only(tmp_path: Path, capsys) -> None:
             file.write("timesteps,train_seconds,eval_seconds,success,mean_return\n50000,10.0,1.0,0.95,0\n")
     time_to_grasp.report(tmp_path, only=["shown"])
     out = capsys.readouterr().out
-    assert "shown: median 10 s" in out and "hidden" not in out
+    assert "shown (5.0k env steps/s): median 10 s" in out and "hidden" not in out
     with pytest.raises(ValueError, match="no result folder absent"):
         time_to_grasp.report(tmp_path, only=["shown", "absent"])
