@@ -129,11 +129,12 @@ def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any
         writer = csv.DictWriter(file, FIELDS)
         writer.writeheader()
         writer.writerows(rows)
+    trained_recipe = {**recipe(args.env, algo), **overrides}
     settings = {"env": args.env, "algo": algo, "seed": seed, "budget": args.budget, "eval_every": args.eval_every,
                 "eval_episodes": args.eval_episodes, "sim_threads": args.sim_threads,
-                "workers": args.workers or {**recipe(args.env, algo), **overrides}.get("rollout_workers"),
+                "workers": args.workers or trained_recipe.get("rollout_workers"),
                 "overrides": overrides,
-                "recipe": {**recipe(args.env, algo), **overrides},
+                "recipe": trained_recipe,
                 "env_steps_per_s": round(model.num_timesteps / trained),
                 "phase_medians": {key: round(float(np.median(values)), 4) for key, values in phases.items()},
                 "machine": {"cpu": cpu_name(), "python": platform.python_version(),
