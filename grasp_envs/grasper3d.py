@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import mujoco
@@ -10,9 +9,9 @@ import numpy as np
 from gymnasium.spaces import Box
 from numpy.typing import NDArray
 
-from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, ArmTask, SimArrays, TaskOptions, asset_path, norm
+from grasp_envs.base import DEFAULT_CAMERA_CONFIG_3D, ArmEnv, ArmTask, SimArrays, asset_path, norm
 from grasp_envs.control import grip_down_commands, point_jacobians
-from grasp_envs.options import amount, choice, flag, integer, option, path
+from grasp_envs.grasper3d_options import CLAWS, CUBE_ROTATIONS, START_POSES, Grasper3DOptions
 
 ARM_JOINTS = ("shoulder_y", "shoulder_z", "elbow_y", "elbow_z", "forearm_roll")
 CLAW_SIDES = ("right", "left")
@@ -20,21 +19,8 @@ CLAW_PARTS = ("outer_top", "inner_top", "outer_bottom", "inner_bottom")
 FLOOR_Z = -0.2
 CUBE_HALF_SIZE = 0.012
 
-REWARD_MODES = ("staged", "thesis")
-CLAWS = {"torque": "grasper3d.xml", "servo": "grasper3d_v1.xml"}  # claw -> the model it comes with
-CONTROLS = ("joint_torque", "grip_velocity")
-IK_MODES = ("weighted", "priority")
-OBSERVATIONS = ("joint", "task")
-REACH_DISTANCES = ("grip", "claw_segment")
-GRASP_TESTS = ("touch", "between", "per_axis")
-
-MAX_GRIP_SPEED = 0.4  # m/s of the grip site at an action of 1
 CLAW_OPEN_TARGET, CLAW_SERVO_SLOPE = -0.3, 0.4  # the servo claw aims at -0.3 + 0.4 c rad
 CLAW_TARGET_RANGE = (-0.7, 0.1)  # what the servo can aim at (ctrl in [-1, 1])
-# Claw servo torque (N m) at which reward_squeeze saturates. Measured with the scripted grasp (10 seeded episodes,
-# median torque while grasped): command 0.42 gives 0.21 N m, 0.5 gives 0.29, 0.7 gives 0.51, 1.0 gives 0.78; the
-# halves first touch the cube at a command of about 0.375.
-SQUEEZE_TORQUE = 0.5
 # grasp_test "between": how far (m) the cube's centre may lie from the segment between the claw sites, in all
 BETWEEN_TOLERANCE = 0.02
 # grasp_test "per_axis": the same along the forearm and along the claw's hinge axis, each. The inner capsules span
@@ -45,20 +31,6 @@ PER_AXIS_TOLERANCE = 0.025
 
 CUBE_ROTATION_JOINT = "cube_rotation"
 CUBE_ROTATION_DAMPING = 1e-4  # N m s/rad per axis; the cube's inertia is 1.3e-6 kg m^2 about each axis
-# cube_rotation -> the joint that lets the cube turn: "yaw" about the world's vertical (it stays upright), "free" about
-# every axis (it can also tip over: the claw tumbles it on the floor and learning was slower)
-CUBE_ROTATIONS: dict[str, dict[str, Any]] = {
-    "yaw": {"type": mujoco.mjtJoint.mjJNT_HINGE, "axis": [0.0, 0.0, 1.0]},
-    "free": {"type": mujoco.mjtJoint.mjJNT_BALL},
-}
-# start_pose -> the arm's joint angles before the reset noise (shoulder_y, shoulder_z, elbow_y, elbow_z, forearm_roll):
-# "stretched", the thesis' (horizontal along +x); "ready", the upper arm pitched 30 deg up and the forearm pointing
-# down, the grip 8.7 cm out along +x and 7 cm above the cube's top face, as manipulation benchmarks start
-# (Gymnasium Robotics' Fetch: the gripper above the table)
-START_POSES: dict[str, tuple[float, ...]] = {
-    "stretched": (0.0, 0.0, 0.0, 0.0, 0.0),
-    "ready": (-np.pi / 6, 0.0, 2 * np.pi / 3, 0.0, 0.0),
-}
 # observation="task" keeps these rows of the joint-space observation: everything but the arm's joint angles and
 # joint velocities (the claw angle, the claw velocity, the cube, the claw sites relative to it, the contacts, and the
 # claw torque where it is observed)
@@ -75,48 +47,6 @@ _BOTTOM_FLOOR_ROWS = np.array([8 + i for i, geom in enumerate(CLAW_GEOMS) if "bo
 
 Array = NDArray[np.float64]
 Flags = NDArray[np.bool_]
-
-
-@dataclass(frozen=True)
-class Grasper3DOptions(TaskOptions):
-    """Grasper3D's options (``Grasper3DEnv``'s Arguments), each checked when they are made, with the rules that tie
-    them together (the claw rate and the servo's torque need the servo claw)."""
-
-    xml_file: str | None = option(None, path(optional=True))
-    frame_skip: int = option(2, integer(1))
-    claw: str = option("servo", choice(CLAWS))
-    control: str = option("grip_velocity", choice(CONTROLS))
-    ik_mode: str = option("priority", choice(IK_MODES))
-    max_grip_speed: float = option(MAX_GRIP_SPEED, amount(positive=True))
-    claw_rate: float | None = option(None, amount(positive=True, optional=True))
-    observation: str = option("task", choice(OBSERVATIONS))
-    observe_claw_torque: bool | None = option(None, flag(optional=True))
-    cube_rotation: str | None = option("yaw", choice((None, *CUBE_ROTATIONS)))
-    start_pose: str = option("ready", choice(START_POSES))
-    reward_mode: str = option("staged", choice(REWARD_MODES))
-    reach_distance: str = option("claw_segment", choice(REACH_DISTANCES))
-    grasp_test: str = option("per_axis", choice(GRASP_TESTS))
-    reward_reach_weight: float = option(1.0, amount())
-    reward_grasp_weight: float = option(4.0, amount())
-    reward_lift_weight: float = option(4.0, amount())
-    reward_hold_weight: float = option(4.0, amount())
-    reward_floor_weight: float = option(1.0, amount())
-    reward_squeeze_weight: float | None = option(None, amount(optional=True))
-    squeeze_torque: float = option(SQUEEZE_TORQUE, amount(positive=True))
-    reward_control_weight: float | None = option(None, amount(optional=True))
-    terminate_on_success: bool | None = option(None, flag(optional=True))
-    reset_noise_scale: float = option(0.1, amount())
-    lift_height: float = option(0.05, amount(positive=True))
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        servo = self.claw == "servo"
-        if self.claw_rate is not None and not (self.control == "grip_velocity" and servo):
-            raise ValueError("claw_rate moves the servo claw's target: it needs control='grip_velocity' and claw='servo'")
-        if not servo and (self.reward_squeeze_weight or self.observe_claw_torque):  # None and 0 ask for nothing
-            raise ValueError(
-                "reward_squeeze_weight and observe_claw_torque read the claw servo's torque: they need claw='servo'"
-            )
 
 
 class Grasper3DTask(ArmTask):
