@@ -90,7 +90,8 @@ class SimArrays:
         self.model = model
         self.data = data
         self.contacts = contacts
-        self.chains: dict[int, NDArray[np.int64]] = {}  # body -> the dofs that move it (grasp_envs.control)
+        # (body, columns) -> the dofs among the columns that move the body, and where (grasp_envs.control)
+        self.chains: dict[tuple[int, tuple[int, ...] | None], tuple[NDArray[np.int64], NDArray[np.int64], int]] = {}
         self.n = len(arrays["qpos"])
         for name in SIM_FIELDS:
             setattr(self, name, arrays[name])
@@ -104,7 +105,9 @@ class SimArrays:
         """A copy of the simulations ``ids``' arrays (a smaller batch, for computing on a subset)."""
         arrays = {name: getattr(self, name)[ids] for name in SIM_FIELDS}
         contacts = None if self.contacts is None else self.contacts[ids]
-        return SimArrays(self.model, arrays, self._warnings[ids], contacts=contacts)
+        subset = SimArrays(self.model, arrays, self._warnings[ids], contacts=contacts)
+        subset.chains = self.chains  # the same model: the same kinematic chains
+        return subset
 
     def instability_warnings(self) -> NDArray[np.int64]:
         """Per simulation, how many times MuJoCo has reset a diverging state (bad qpos, qvel, qacc or ctrl)."""
@@ -300,8 +303,9 @@ def info_of(info: dict[str, NDArray[Any]], i: int) -> dict[str, Any]:
 
 def infos_of(info: dict[str, NDArray[Any]], n: int) -> list[dict[str, Any]]:
     """Every simulation's info dict, with Python scalars (``info_of`` for each, in one conversion per key)."""
-    columns = {key: value.tolist() for key, value in info.items()}
-    return [{key: column[i] for key, column in columns.items()} for i in range(n)]
+    keys = list(info)
+    rows = zip(*(value.tolist() for value in info.values()), strict=True) if keys else ((),) * n
+    return [dict(zip(keys, row, strict=True)) for row in rows]
 
 
 class Physics:

@@ -35,7 +35,7 @@ from grasp_envs.options import Rule, check_arguments, flag, integer, is_keywords
 from grasp_envs.proximity import ContactScreen
 from grasp_envs.wrappers import ScriptedStartOptions, ScriptedStarts, scripted_starts
 
-# MjData fields that are state (bound as live views); the others are derived, refreshed by each batch call
+# MjData fields that are state (bound as live views); the others are derived, refreshed by each call on the simulations it ran
 _STATE_FIELDS = ("qpos", "qvel", "ctrl", "mocap_pos")
 
 # What each argument of BatchVecEnv and make_batch_env accepts, and that requirement in words. Booleans are bool only,
@@ -61,9 +61,9 @@ ARGUMENT_RULES: dict[str, Rule] = {
 class BatchPhysics(Physics):
     """``n`` simulations of a task's model in one ``mujoco.batch.Batch``, stepped on ``n_threads`` threads.
 
-    ``sim`` binds the batch's state fields (live views) and keeps its derived fields and contact counts as ``MjData``
-    shows them after ``mj_step`` (a snapshot refreshed after each call on the simulations it stepped: the batch's own
-    are refreshed by every call). The contact list has no batched binding: each simulation's is read from its
+    ``sim`` binds the batch's fields as live views: its state fields, and its derived fields, which each call
+    refreshes for the simulations it ran only, so that every simulation's show it as ``MjData`` after its last
+    ``mj_step`` or ``mj_forward``. The contact list has no batched binding: each simulation's is read from its
     ``MjData``, for the tasks that count contacts, only where ``ContactScreen`` finds that a counted pair may touch.
     """
 
@@ -73,11 +73,10 @@ class BatchPhysics(Physics):
         self.batch = mujoco.batch.Batch(model, n, n_threads, persistent=True)
         self._state = {name: self.batch.bind(name) for name in _STATE_FIELDS}
         self._derived = {name: self.batch.bind(name) for name in SIM_FIELDS if name not in _STATE_FIELDS}
-        self._snapshot = {name: array.copy() for name, array in self._derived.items()}
         self._contacts = np.zeros((n, len(task.contact_pairs)))
         self._contact_data = mujoco.MjData(model)
         self._screen = ContactScreen(model, [(task.geom_id(a), task.geom_id(b)) for a, b in task.contact_pairs])
-        self.sim = SimArrays(model, {**self._state, **self._snapshot}, self.batch.warning[..., 1], contacts=self._contacts)
+        self.sim = SimArrays(model, {**self._state, **self._derived}, self.batch.warning[..., 1], contacts=self._contacts)
 
     def _run(self, ids: NDArray[np.int64] | None) -> None:
         self.batch.step(ids, nstep=self.task.frame_skip)
@@ -86,15 +85,10 @@ class BatchPhysics(Physics):
         self.batch.reset(ids)
 
     def _settle(self, ids: NDArray[np.int64] | None) -> None:
-        """Keep the derived fields and the contacts of ``ids`` (all: ``None``) as MjData shows them now."""
-        for name, array in self._derived.items():
-            if ids is None:
-                np.copyto(self._snapshot[name], array)
-            else:
-                self._snapshot[name][ids] = array[ids]
+        """Count the contacts of ``ids`` (all: ``None``) as MjData shows them now."""
         if self.task.contact_pairs:  # the contact list has no batched binding: read each simulation's MjData
-            xpos, xmat = self._snapshot["geom_xpos"], self._snapshot["geom_xmat"]
-            if ids is None:  # every simulation: the snapshot as it is, no row copies
+            xpos, xmat = self._derived["geom_xpos"], self._derived["geom_xmat"]
+            if ids is None:  # every simulation: the bound arrays as they are, no row copies
                 rows = np.arange(self.n)
             else:
                 rows = np.asarray(ids)
@@ -289,9 +283,8 @@ class BatchVecEnv(VecEnv):
         limit = self.max_episode_steps
         truncated = self._episode_steps >= limit if limit is not None else np.zeros(self.num_envs, dtype=bool)
         done = terminated | truncated
+        info["TimeLimit.truncated"] = truncated & ~terminated  # as SB3's DummyVecEnv: on every step
         infos = infos_of(info, self.num_envs)
-        for i, env_info in enumerate(infos):  # as SB3's DummyVecEnv: on every step
-            env_info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
         ids = np.flatnonzero(done)
         if self._monitor:
             self._record_episodes(reward, ids, infos)

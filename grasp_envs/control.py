@@ -15,6 +15,8 @@ from grasp_envs.base import SimArrays
 
 VELOCITY_GAIN = 25.0  # joint-velocity servo gain (1/s); armature 1, so torque = gain * velocity error
 MAX_JOINT_SPEED = 10.0  # rad/s asked of any joint by the inverse kinematics
+ARM_DOFS = np.arange(5)  # the Grasper's five arm joints, the first five degrees of freedom
+ARM_DOFS.flags.writeable = False
 
 Array = NDArray[np.float64]
 
@@ -40,30 +42,47 @@ def chain_dofs(model: mujoco.MjModel, body: int) -> NDArray[np.int64]:
     return np.array(dofs, dtype=np.int64)
 
 
-def point_jacobians(sim: SimArrays, body: int, point: Array) -> tuple[Array, Array]:
+def point_jacobians(sim: SimArrays, body: int, point: Array, dofs: NDArray[np.int64] | None = None) -> tuple[Array, Array]:
     """Translational and rotational Jacobians ``(n, 3, nv)`` of the world points ``point`` ``(n, 3)`` fixed to
-    ``body``: MuJoCo's ``mj_jac``. One ``MjData`` (a batch of one) calls it; a batch computes it for all simulations at
-    once from the bound ``cdof`` and ``subtree_com``, in ``mj_jac``'s operation order (bit-equal, tested)."""
+    ``body``: MuJoCo's ``mj_jac``; with ``dofs``, only those columns, ``(n, 3, len(dofs))``. One ``MjData`` (a batch of
+    one) calls it; a batch computes it for all simulations at once from the bound ``cdof`` and ``subtree_com``, in
+    ``mj_jac``'s operation order (bit-equal, tested), for the asked columns only."""
     model = sim.model
-    jacp = np.zeros((sim.n, 3, model.nv))
-    jacr = np.zeros((sim.n, 3, model.nv))
     if sim.data is not None:
+        jacp = np.zeros((1, 3, model.nv))
+        jacr = np.zeros((1, 3, model.nv))
         mujoco.mj_jac(model, sim.data, jacp[0], jacr[0], point[0], body)
-        return jacp, jacr
-    dofs = sim.chains.get(body)
+        return (jacp, jacr) if dofs is None else (jacp[:, :, dofs], jacr[:, :, dofs])
+    key = (body, None if dofs is None else tuple(dofs.tolist()))
+    columns = sim.chains.get(key)
+    if columns is None:
+        columns = sim.chains[key] = chain_columns(model, body, np.arange(model.nv) if dofs is None else dofs)
+    chain, where, width = columns
     if dofs is None:
-        dofs = sim.chains[body] = chain_dofs(model, body)
+        jacp, jacr = np.zeros((sim.n, 3, width)), np.zeros((sim.n, 3, width))
+    else:  # laid out as the one-MjData path's jacp[:, :, dofs], so that products with them round the same on both
+        jacp, jacr = np.zeros((width, sim.n, 3)).transpose(1, 2, 0), np.zeros((width, sim.n, 3)).transpose(1, 2, 0)
     offset = point - sim.subtree_com[:, model.body_rootid[body]]
-    motion = sim.cdof[:, dofs]  # (n, k, 6): rotation then translation
-    jacp[:, :, dofs] = (motion[..., 3:] + cross(motion[..., :3], offset[:, None, :])).transpose(0, 2, 1)
-    jacr[:, :, dofs] = motion[..., :3].transpose(0, 2, 1)
+    motion = sim.cdof[:, chain]  # (n, k, 6): rotation then translation
+    jacp[:, :, where] = (motion[..., 3:] + cross(motion[..., :3], offset[:, None, :])).transpose(0, 2, 1)
+    jacr[:, :, where] = motion[..., :3].transpose(0, 2, 1)
     return jacp, jacr
+
+
+def chain_columns(
+    model: mujoco.MjModel, body: int, dofs: NDArray[np.int64]
+) -> tuple[NDArray[np.int64], NDArray[np.int64], int]:
+    """The degrees of freedom among ``dofs`` that move ``body`` (``chain_dofs``), the columns of a Jacobian over
+    ``dofs`` they fill, and how many columns it has."""
+    column_of = {int(dof): column for column, dof in enumerate(np.asarray(dofs).tolist())}
+    chain = np.array([dof for dof in chain_dofs(model, body).tolist() if dof in column_of], dtype=np.int64)
+    return chain, np.array([column_of[dof] for dof in chain.tolist()], dtype=np.int64), len(column_of)
 
 
 def site_jacobian(sim: SimArrays, site: int, dofs: NDArray[np.int64]) -> Array:
     """Translational Jacobian of a site with respect to the joints ``dofs``, ``(n, 3, len(dofs))``."""
-    jacp, _ = point_jacobians(sim, int(sim.model.site_bodyid[site]), sim.site_xpos[:, site])
-    return jacp[:, :, dofs]
+    jacp, _ = point_jacobians(sim, int(sim.model.site_bodyid[site]), sim.site_xpos[:, site], dofs)
+    return jacp
 
 
 def damped_least_squares(jacobian: Array, error: Array, damping: float = 1e-3) -> Array:
@@ -101,7 +120,7 @@ def reach(sim: SimArrays, site: int, goal: Array, dofs: NDArray[np.int64], speed
 
 def grip_down_commands(sim: SimArrays, grip_velocity: Array, grip_priority: bool = False) -> Array:
     """Commands of the Grasper's five arm motors: the velocity servo driving ``grip_down_velocity``."""
-    return velocity_servo(sim, np.arange(5), grip_down_velocity(sim, grip_velocity, grip_priority))
+    return velocity_servo(sim, ARM_DOFS, grip_down_velocity(sim, grip_velocity, grip_priority))
 
 
 def grip_down_velocity(sim: SimArrays, grip_velocity: Array, grip_priority: bool = False) -> Array:
@@ -120,15 +139,14 @@ def grip_down_velocity(sim: SimArrays, grip_velocity: Array, grip_priority: bool
     three cubes within 4.3 cm of it (with priority: lifted 6 cm, and one of the three lifted 12 cm).
     """
     model = sim.model
-    dofs = np.arange(5)
-    forearm = int(model.body("forearm").id)
+    dofs = ARM_DOFS
+    forearm = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "forearm")
     xmat = sim.xmat[:, forearm].reshape(-1, 3, 3)
     axis, closing = xmat[:, :, 0], xmat[:, :, 1]
-    _, jacr = point_jacobians(sim, forearm, sim.xpos[:, forearm])
-    jacr = jacr[:, :, dofs]
+    _, jacr = point_jacobians(sim, forearm, sim.xpos[:, forearm], dofs)
     up = np.zeros_like(axis)
     up[:, 2] = 1.0
-    grip = site_jacobian(sim, int(model.site("grip").id), dofs)
+    grip = site_jacobian(sim, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "grip"), dofs)
     closing_row = (cross(closing, up)[:, None, :] @ jacr)[:, 0]
     primary = np.concatenate([grip, closing_row[:, None, :]], axis=1)
     primary_error = np.concatenate([grip_velocity, -4.0 * closing[:, 2:3]], axis=1)

@@ -107,17 +107,26 @@ class ContactScreen:
                 self.enabled = False
                 continue
             rows["plane" if types[g2] == plane else "box" if types[g2] == box else "segment"].append((g1, g2, margin))
-        self._groups: dict[str, tuple[NDArray[np.int64], NDArray[np.int64], Array]] = {}
+        # the segment-like geoms of every group, whose end points are computed once per call
+        self._firsts = np.unique([first for group in rows.values() for first, _, _ in group]).astype(np.int64)
+        # per group: its first geoms' columns among self._firsts (None: all, in order), its second geoms, that geom
+        # where they are one (None otherwise), and the largest bound at which a pair may touch (the first's radius,
+        # the margin and CLEARANCE)
+        Group = tuple[NDArray[np.int64] | None, NDArray[np.int64], int | None, Array]
+        self._groups: dict[str, Group] = {}
         for kind, group in rows.items():
             if group:
-                first, second, margin = zip(*group, strict=True)
-                self._groups[kind] = (np.array(first), np.array(second), np.array(margin, dtype=np.float64))
+                first, second, margin = (np.array(values) for values in zip(*group, strict=True))
+                columns = np.searchsorted(self._firsts, first)
+                same = len(first) == len(self._firsts) and bool((columns == np.arange(len(first))).all())
+                reach = self._radius[first] + margin.astype(np.float64) + CLEARANCE
+                second = second.astype(np.int64)
+                shared = int(second[0]) if bool((second == second[0]).all()) else None
+                self._groups[kind] = (None if same else columns, second, shared, reach)
 
     def _segments(self, geoms: NDArray[np.int64], xpos: Array, frames: Array) -> tuple[Array, Array]:
-        """End points of each geom's segment (a capsule's axis along its z, a point for other geoms)."""
-        axis = frames[:, geoms][..., 2] * self._half_length[geoms, None]
-        center = xpos[:, geoms]
-        return center - axis, center + axis
+        """Centres and half axes of each geom's segment (a capsule's axis along its z; zero for other geoms)."""
+        return xpos[:, geoms], frames[:, geoms][..., 2] * self._half_length[geoms, None]
 
     def may_touch(self, geom_xpos: Array, geom_xmat: Array) -> NDArray[np.bool_]:
         """``(n,)``: whether a simulation may hold a contact between a screened pair (``geom_xpos`` ``(n, ngeom, 3)``,
@@ -127,14 +136,27 @@ class ContactScreen:
             return np.ones(n, dtype=bool)
         possible = np.zeros(n, dtype=bool)
         frames = geom_xmat.reshape(n, -1, 3, 3)
-        for kind, (first, second, margin) in self._groups.items():
-            p, q = self._segments(first, geom_xpos, frames)
-            if kind == "plane":
-                bound = segment_plane_distance(p, q, geom_xpos[:, second], frames[:, second][..., 2])
+        segments = self._segments(self._firsts, geom_xpos, frames)
+        for kind, (rows, second, shared, reach) in self._groups.items():
+            center, axis = segments if rows is None else (segments[0][:, rows], segments[1][:, rows])
+            if shared is not None and kind == "plane":  # the lower end's height: the centre's less the half axis'
+                normal = frames[:, shared, :, 2, None]
+                bound = ((center - geom_xpos[:, shared, None]) @ normal)[..., 0] - np.abs(axis @ normal)[..., 0]
+            elif shared is not None and kind == "box":  # in the box's frame, the largest gap along one of its axes
+                rotation = frames[:, shared]
+                local, extent = (center - geom_xpos[:, shared, None]) @ rotation, np.abs(axis @ rotation)
+                # (not clipped at 0 as segment_box_separation's: it is compared with a positive reach only)
+                bound = (np.abs(local) - extent - self._box_half[shared]).max(axis=-1)
+            elif kind == "plane":
+                normal = frames[:, second][..., 2]
+                bound = segment_plane_distance(center - axis, center + axis, geom_xpos[:, second], normal)
             elif kind == "box":
-                bound = segment_box_separation(p, q, geom_xpos[:, second], frames[:, second], self._box_half[second])
+                bound = segment_box_separation(
+                    center - axis, center + axis, geom_xpos[:, second], frames[:, second], self._box_half[second]
+                )
             else:
-                p2, q2 = self._segments(second, geom_xpos, frames)
-                bound = segment_segment_distance(p, q, p2, q2) - self._radius[second]
-            possible |= (bound <= self._radius[first] + margin + CLEARANCE).any(axis=1)
+                center2, axis2 = self._segments(second, geom_xpos, frames)
+                distance = segment_segment_distance(center - axis, center + axis, center2 - axis2, center2 + axis2)
+                bound = distance - self._radius[second]
+            possible |= (bound <= reach).any(axis=1)
         return possible

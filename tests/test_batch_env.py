@@ -125,6 +125,29 @@ def test_jacobians_equal_mujocos_per_simulation() -> None:
         np.testing.assert_array_equal(batch_jacr[0], jacr)
 
 
+def test_jacobian_columns_are_the_full_jacobians_columns_in_the_same_layout() -> None:
+    """``point_jacobians(..., dofs)`` is the full Jacobian's ``[:, :, dofs]`` bit for bit and in the memory layout
+    of that selection, on the batch's path and on one MjData's, so that the IK's products over it round the same on
+    both (dofs inside and outside the body's chain, in any order)."""
+    batch = make_batch_env("Grasper3D-v7", 5, seed=3)
+    batch.reset()
+    rng = np.random.default_rng(3)
+    model = batch.model
+    data = mujoco.MjData(model)
+    for _ in range(20):
+        batch.step(rng.uniform(-1, 1, size=(5, 4)))
+    for body in (int(model.body("forearm").id), int(model.site_bodyid[model.site("grip").id])):
+        for dofs in (np.arange(5), np.array([7, 0, 3]), np.arange(model.nv)):
+            full = point_jacobians(batch.sim, body, batch.sim.xpos[:, body])
+            columns = point_jacobians(batch.sim, body, batch.sim.xpos[:, body], dofs)
+            batch.batch.get_data(2, data)
+            one = point_jacobians(SimArrays.of_data(model, data), body, data.xpos[None, body], dofs)
+            for whole, part, single in zip(full, columns, one, strict=True):
+                np.testing.assert_array_equal(part, whole[:, :, dofs])
+                assert part.strides == whole[:, :, dofs].strides
+                np.testing.assert_array_equal(single[0], part[2])
+
+
 @pytest.mark.parametrize(
     ("kwargs", "error", "message"),
     [

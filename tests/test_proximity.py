@@ -150,3 +150,27 @@ def test_a_screened_out_pair_is_beyond_reach() -> None:
         mujoco.mj_forward(model, data)
         assert screen.may_touch(data.geom_xpos[None], data.geom_xmat[None])[0] == expected
         assert (data.ncon > 0) <= expected
+
+
+def test_the_screens_shared_geom_path_is_its_pairwise_path() -> None:
+    """Where every pair of a group has the same second geom (the Grasper's claw capsules with the floor and with the
+    cube), the screen bounds them broadcast over that geom's pose; along random motion its answer is the one of
+    bounding each pair with ``segment_plane_distance`` and ``segment_box_separation``."""
+    env = gym.make("Grasper3D-v7").unwrapped
+    task, model = env.task, env.model
+    pairs = [(task.geom_id(a), task.geom_id(b)) for a, b in task.contact_pairs]
+    screen, pairwise = ContactScreen(model, pairs), ContactScreen(model, pairs)
+    assert {kind: group[2] is not None for kind, group in screen._groups.items()} == {"plane": True, "box": True}
+    pairwise._groups = {kind: (rows, second, None, reach) for kind, (rows, second, _, reach) in screen._groups.items()}
+    env.reset(seed=1)
+    rng = np.random.default_rng(1)
+    xpos, xmat = [], []
+    for t in range(600):
+        noisy = grasper3d_policy(env) + rng.normal(0.0, 0.3, env.action_space.shape)
+        env.step(np.clip(noisy, env.action_space.low, env.action_space.high) if t % 200 < 150 else env.action_space.sample())
+        xpos.append(env.data.geom_xpos.copy())
+        xmat.append(env.data.geom_xmat.copy())
+    xpos_all, xmat_all = np.array(xpos), np.array(xmat)
+    possible = screen.may_touch(xpos_all, xmat_all)
+    np.testing.assert_array_equal(possible, pairwise.may_touch(xpos_all, xmat_all))
+    assert 0 < possible.sum() < len(possible)
