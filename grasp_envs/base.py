@@ -149,8 +149,8 @@ class ArmTask:
 
     Made from the task's options (``options``, a ``TaskOptions`` dataclass, checked when it was made); the options
     also read as the task's attributes (``task.reset_noise_scale``), as a VecEnv's ``get_attr`` asks for them.
-    Subclasses set ``observation_dim`` and ``contact_pairs`` (geom name pairs whose contacts the task counts, read
-    through MuJoCo contact sensors added to the model), and implement ``observe``, ``reward`` (``(reward, info)``
+    Subclasses set ``observation_dim`` and ``contact_pairs`` (geom name pairs whose contacts the task counts in
+    MuJoCo's contact list, ``contact_counts``), and implement ``observe``, ``reward`` (``(reward, info)``
     with ``info`` arrays, one ``reward_<term>`` per term), ``success`` and ``sample_start``. Per-simulation task
     state (e.g. whether the wall was touched) lives in arrays of length ``n`` set up by ``setup``.
     """

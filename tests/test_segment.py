@@ -12,7 +12,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from sb3_trpo_plus import TRPOPlus
 from sb3_trpo_plus.normalization import NormalizationStats
-from sb3_trpo_plus.segment import LoopState, Segment, SegmentRolloutBuffer, StepLocals, collect_segment
+from sb3_trpo_plus.segment import LoopState, Segment, SegmentRolloutBuffer, StepLocals, collect_segment, sampling_forward
 
 
 def _pendulum(n_envs: int = 2, max_episode_steps: int = 15) -> VecNormalize:
@@ -173,3 +173,37 @@ def test_dict_observations_are_collected_and_learned_from() -> None:
     flat = segment.observations["speed"].swapaxes(0, 1).reshape(32, 1)
     np.testing.assert_array_equal(model.rollout_buffer.observations["speed"], flat)
     assert model.num_timesteps == 64
+
+
+@pytest.mark.parametrize("share", [True, False])
+def test_the_lean_forward_pass_is_the_policys_bit_for_bit(share: bool) -> None:
+    """SB3's MLP policy with Gaussian actions is sampled by the lean forward pass: the same actions (the same draws from
+    torch's generator), values and log probabilities as ``policy(obs)``, under no-grad and inference mode."""
+    env = make_vec_env("Pendulum-v1", n_envs=4, seed=1)
+    kwargs = {"net_arch": [16, 16], "log_std_init": -0.7, "share_features_extractor": share}
+    policy = PPO("MlpPolicy", env, policy_kwargs=kwargs, seed=0, device="cpu").policy
+    policy.set_training_mode(False)
+    forward = sampling_forward(policy)
+    assert forward is not policy
+    obs = th.as_tensor(np.random.default_rng(0).normal(size=(64, 3)))  # float64, as obs_as_tensor gives them
+    for mode in (th.no_grad, th.inference_mode):
+        with mode():
+            th.manual_seed(5)
+            expected = policy(obs)
+            th.manual_seed(5)
+            lean = forward(obs)
+            after = th.randn(1)
+            th.manual_seed(5)
+            policy(obs)
+            assert th.equal(th.randn(1), after)  # as many draws
+        for got, want in zip(lean, expected, strict=True):
+            assert got.dtype == want.dtype and got.shape == want.shape
+            assert th.equal(got, want)
+
+
+def test_other_policies_are_sampled_by_their_own_forward_pass() -> None:
+    env = make_vec_env("Pendulum-v1", n_envs=2, seed=1)
+    sde = PPO("MlpPolicy", env, use_sde=True, seed=0, device="cpu").policy
+    assert sampling_forward(sde) is sde
+    discrete = PPO("MlpPolicy", make_vec_env("CartPole-v1", n_envs=2, seed=1), seed=0, device="cpu").policy
+    assert sampling_forward(discrete) is discrete
