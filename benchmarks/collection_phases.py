@@ -5,10 +5,11 @@
 Builds the recipe's rollout worker in this process (``n_envs`` envs on the batched engine, its scripted starts, the
 recipe's policy at its initialisation), collects a few segments to warm up, then times ``--segments`` segments of
 ``n_steps`` steps, ``--repeats`` times, and prints per segment (medians of the repeats, ms): the whole collection,
-the physics (``mujoco.batch`` steps: the episodes' steps and the scripted starts' unseen ones), the task's controls
-(the grip IK), the contact counts after each physics call (the screen and the contact lists it lets through), the
-task's transition (observation, reward, success), the policy's forward passes (``sampling_forward``), and the rest
-(the VecEnv's and the segment's bookkeeping, the scripted grasp's actions, resets). No profiler runs: each phase
+the physics (``mujoco.batch`` steps of every simulation: the episodes' steps), the scripted starts' physics (steps
+of some simulations: the unseen scripted steps after a reset), the task's controls (the grip IK), the contact counts
+after each physics call (the screen and the contact lists it lets through), the task's transition (observation,
+reward, success), the policy's forward passes (``sampling_forward``), and the rest (the VecEnv's and the segment's
+bookkeeping, the scripted grasp's actions, resets). No profiler runs: each phase
 is timed by a wrapper around its function. Writes the table and the raw numbers to
 ``benchmarks/results/collection_phases.json``.
 """
@@ -29,7 +30,7 @@ import torch as th
 
 from benchmarks.machine import cpu_name
 
-PHASES = ("physics", "controls", "contacts", "transition", "policy")
+PHASES = ("physics", "scripted", "controls", "contacts", "transition", "policy")
 
 
 def timed(seconds: dict[str, float], phase: str, function: Callable[..., Any]) -> Callable[..., Any]:
@@ -68,7 +69,9 @@ def measure(env_id: str, sim_threads: int, segments: int, repeats: int) -> dict[
     assert isinstance(env, BatchVecEnv), f"{env_id} collects on the batched engine"
     seconds = dict.fromkeys(PHASES, 0.0)
     physics, task = env.physics, env.task
-    physics._run = timed(seconds, "physics", physics._run)  # type: ignore[method-assign]
+    run, run_all, run_some = physics._run, timed(seconds, "physics", physics._run), timed(seconds, "scripted", physics._run)
+    # every simulation stepped: an episode step; some of them: the scripted starts' steps after a reset
+    physics._run = lambda ids: (run_all if ids is None else run_some)(ids)  # type: ignore[method-assign]
     physics._settle = timed(seconds, "contacts", physics._settle)  # type: ignore[method-assign]
     task.controls = timed(seconds, "controls", task.controls)  # type: ignore[method-assign]
     task.transition = timed(seconds, "transition", task.transition)  # type: ignore[method-assign]
@@ -88,6 +91,7 @@ def measure(env_id: str, sim_threads: int, segments: int, repeats: int) -> dict[
         row["rest"] = row["collection"] - sum(row[phase] for phase in PHASES)
         rows.append(row)
     segment.sampling_forward = sampling_forward  # type: ignore[assignment]
+    physics._run = run  # type: ignore[method-assign]
     worker.close()
     model.env.close()  # type: ignore[union-attr]
     return {"n_envs": n_envs, "n_steps": n_steps, "repeats": rows}
