@@ -35,7 +35,8 @@ from grasp_envs.options import Rule, check_arguments, flag, integer, is_keywords
 from grasp_envs.proximity import ContactScreen
 from grasp_envs.wrappers import ScriptedStartOptions, ScriptedStarts, scripted_starts
 
-# MjData fields that are state (bound as live views); the others are derived, refreshed by each call on the simulations it ran
+# MjData fields that are state (bound as live views); the others are derived, refreshed by each call on the
+# simulations it ran
 _STATE_FIELDS = ("qpos", "qvel", "ctrl", "mocap_pos")
 
 # What each argument of BatchVecEnv and make_batch_env accepts, and that requirement in words. Booleans are bool only,

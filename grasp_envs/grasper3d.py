@@ -36,8 +36,8 @@ CUBE_ROTATION_DAMPING = 1e-4  # N m s/rad per axis; the cube's inertia is 1.3e-6
 # claw torque where it is observed)
 TASK_KEPT_JOINT_ROWS = np.r_[10, 16:32]
 CLAW_GEOMS = tuple(f"claw_{side}_{part}" for side in CLAW_SIDES for part in CLAW_PARTS)  # right's four, then left's
-# the contacts the task counts, each pair's in MuJoCo's contact list: every claw capsule with the cube (rows 0-7) and with the
-# floor (8-15), every right capsule with every left one (16-31)
+# the contacts the task counts, each pair's in MuJoCo's contact list: every claw capsule with the cube (rows 0-7) and
+# with the floor (8-15), every right capsule with every left one (16-31)
 CONTACT_PAIRS = (
     tuple((geom, "cube") for geom in CLAW_GEOMS)
     + tuple((geom, "floor") for geom in CLAW_GEOMS)

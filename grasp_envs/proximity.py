@@ -19,6 +19,9 @@ Array = NDArray[np.float64]
 # a pair is screened out only when its lower bound exceeds this (m): far above the collision functions' tolerances
 CLEARANCE = 1e-3
 _TINY = 1e-12
+# a group of screened pairs: its first geoms' columns among the screen's segment-like geoms (None: all, in order),
+# its second geoms, that geom where they are one (None otherwise), and each pair's largest bound to touch
+_Group = tuple[NDArray[np.int64] | None, NDArray[np.int64], int | None, Array]
 
 
 def _dot(a: Array, b: Array) -> Array:
@@ -109,11 +112,8 @@ class ContactScreen:
             rows["plane" if types[g2] == plane else "box" if types[g2] == box else "segment"].append((g1, g2, margin))
         # the segment-like geoms of every group, whose end points are computed once per call
         self._firsts = np.unique([first for group in rows.values() for first, _, _ in group]).astype(np.int64)
-        # per group: its first geoms' columns among self._firsts (None: all, in order), its second geoms, that geom
-        # where they are one (None otherwise), and the largest bound at which a pair may touch (the first's radius,
-        # the margin and CLEARANCE)
-        Group = tuple[NDArray[np.int64] | None, NDArray[np.int64], int | None, Array]
-        self._groups: dict[str, Group] = {}
+        # per group (_Group), the largest bound at which a pair may touch: the first's radius, the margin and CLEARANCE
+        self._groups: dict[str, _Group] = {}
         for kind, group in rows.items():
             if group:
                 first, second, margin = (np.array(values) for values in zip(*group, strict=True))

@@ -64,8 +64,9 @@ PolicyForward = Callable[[Any], tuple[th.Tensor, th.Tensor, th.Tensor]]
 def sampling_forward(policy: ActorCriticPolicy) -> PolicyForward:
     """``policy``'s forward pass for collection: ``policy(obs)``; for SB3's MLP policy with diagonal Gaussian actions
     on a Box observation space (its ``MlpPolicy`` with a ``FlattenExtractor``, shared or not, no gSDE), the same
-    tensor operations in the same order without the module and distribution objects around them, a third of the
-    time per step of a small policy. Either way the same draws from torch's generator and bit-identical outputs."""
+    tensor operations in the same order without the module and distribution objects around them (two thirds of
+    the time per call for the Grasper recipe's 100-100 policy on 64 envs). Either way the same draws from torch's
+    generator and bit-identical outputs."""
     extractor = policy.features_extractor
     plain = (
         type(policy) is ActorCriticPolicy
