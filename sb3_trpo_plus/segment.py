@@ -337,7 +337,7 @@ def collect_segment(
     terminal_observations: list[Observation] = []
     terminal_timesteps: list[int] = []
     policy.set_training_mode(False)
-    forward = sampling_forward(policy) if sde_sample_freq is None else policy
+    forward = sampling_forward(policy)  # a gSDE policy samples with its own forward pass
     check_finite_observations(state.observation, source)
     # callbacks may keep what they are shown: plain no-grad tensors for them, inference tensors otherwise
     grad_free = th.no_grad() if on_step is not None else th.inference_mode()
