@@ -76,18 +76,24 @@ def log_prob_of(policy: ActorCriticPolicy, observations: th.Tensor, actions: th.
         return policy.get_distribution(observations).log_prob(action_tensor(actions))
 
 
-def truncated_trace_ratios(
-    policy: ActorCriticPolicy, segment: Segment, actions: th.Tensor, behaviour: th.Tensor, clip: float, action_tensor: Callable
-) -> TraceRatios:
-    """``c_t = min(pi_current / q, clip)`` of ``segment``'s ``actions`` (behaviour log-probabilities ``behaviour``)."""
+class TruncatedTraceRatios:
+    """``c_t = min(pi_current / q, clip)`` of ``segment``'s ``actions`` (behaviour log-probabilities ``behaviour``), as
+    :data:`TraceRatios`. Keeps the current policy's log-probabilities it computed (``log_prob``): the update's
+    off-policy distance needs the same ones, so they are not computed twice."""
 
-    def ratios(flat_observations: np.ndarray) -> np.ndarray:
-        observations = policy.obs_to_tensor(flat_observations)[0]
-        log_prob = log_prob_of(policy, observations, actions, action_tensor)  # type: ignore[arg-type]
-        ratio = th.exp(th.clamp(log_prob - behaviour, -50.0, 50.0)).cpu().numpy()
-        return np.minimum(ratio, clip).reshape(segment.n_steps, segment.n_envs)
+    def __init__(
+        self, policy: ActorCriticPolicy, segment: Segment, actions: th.Tensor, behaviour: th.Tensor, clip: float,
+        action_tensor: Callable,
+    ) -> None:  # fmt: skip
+        self.policy, self.segment, self.actions, self.behaviour = policy, segment, actions, behaviour
+        self.clip, self.action_tensor = clip, action_tensor
+        self.log_prob: th.Tensor | None = None
 
-    return ratios
+    def __call__(self, flat_observations: np.ndarray) -> np.ndarray:
+        observations = self.policy.obs_to_tensor(flat_observations)[0]
+        self.log_prob = log_prob_of(self.policy, observations, self.actions, self.action_tensor)  # type: ignore[arg-type]
+        ratio = th.exp(th.clamp(self.log_prob - self.behaviour, -50.0, 50.0)).cpu().numpy()
+        return np.minimum(ratio, self.clip).reshape(self.segment.n_steps, self.segment.n_envs)
 
 
 def generalized_batch(
@@ -111,6 +117,7 @@ def generalized_batch(
     observations: list[th.Tensor] = []
     actions: list[th.Tensor] = []
     sampling: list[th.Tensor] = []
+    current_log_prob: list[th.Tensor] = []
     advantages: list[th.Tensor] = []
     returns: list[th.Tensor] = []
     sample_weights: list[th.Tensor] = []
@@ -121,6 +128,7 @@ def generalized_batch(
         observations.append(current.observations)  # type: ignore[arg-type]
         actions.append(current.actions)
         sampling.append(current.old_log_prob)
+        current_log_prob.append(current.old_log_prob)  # on-policy: its importance ratio is 1
         advantages.append(current.advantages)
         returns.append(current.returns)
         sample_weights.append(th.full((n_current,), float(weights[0]), device=device))
@@ -132,8 +140,11 @@ def generalized_batch(
         as_buffered = segment.actions.reshape(segment.n_samples, -1).astype(np.float32)  # the buffer's actions
         stored_actions = th.as_tensor(as_buffered, device=device)
         behaviour = th.as_tensor(segment.log_probs.reshape(-1), device=device)
-        traces = truncated_trace_ratios(policy, segment, stored_actions, behaviour, settings.trace_clip, action_tensor)
+        traces = TruncatedTraceRatios(policy, segment, stored_actions, behaviour, settings.trace_clip, action_tensor)
         evaluation = evaluate(segment, traces)
+        if traces.log_prob is None:
+            raise RuntimeError("generalized_batch: `evaluate` must compute the segment's trace ratios from its observations")
+        current_log_prob.append(traces.log_prob)
         observations.append(policy.obs_to_tensor(evaluation.observations)[0])  # type: ignore[arg-type]
         actions.append(stored_actions)
         sampling.append(behaviour)
@@ -143,7 +154,7 @@ def generalized_batch(
     all_observations, all_actions = th.cat(observations), th.cat(actions)
     all_sampling, all_weights = th.cat(sampling), th.cat(sample_weights)
     # how far the current policy already is from the ones that collected the stored batches
-    offpolicy = th.exp(th.clamp(log_prob_of(policy, all_observations, all_actions, action_tensor) - all_sampling, -50.0, 50.0))
+    offpolicy = th.exp(th.clamp(th.cat(current_log_prob) - all_sampling, -50.0, 50.0))
     offpolicy[:n_current] = 1.0
     spent = float((all_weights * (offpolicy - 1.0).abs()).mean())
     k = sub_sampling

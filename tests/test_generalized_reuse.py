@@ -12,6 +12,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_trpo_plus import TRPOPlus
+from sb3_trpo_plus.generalized import ReuseSettings, generalized_batch, log_prob_of
 from sb3_trpo_plus.rollouts import InProcessRollouts
 
 TINY = dict(n_steps=64, batch_size=64, n_critic_updates=3, policy_kwargs={"net_arch": [16]}, device="cpu")
@@ -57,6 +58,39 @@ def test_kl_vary_spends_the_radius_the_old_batches_already_used() -> None:
     spent = 2 * logged["train/reuse_offpolicy_tv"]
     assert spent > 0
     assert logged["train/reuse_radius"] == pytest.approx(max(np.sqrt(2 * 0.01) - spent, 0) ** 2 / 2, rel=1e-5)
+
+
+def test_the_offpolicy_distance_is_the_current_policys_ratio_to_each_stored_batch() -> None:
+    """``offpolicy_tv`` (and so ``reuse_kl_vary``'s spent radius) is ``mean(w * |pi / q - 1|) / 2`` over the stored
+    batches, from the log-probabilities the traces computed: equal to a separate forward pass of the policy."""
+    env = VecNormalize(make_vec_env("Pendulum-v1", n_envs=2, seed=1))
+    model = TRPOPlus("MlpPolicy", env, seed=0, sample_reuse="generalized", **TINY).learn(3 * 128)
+    assert model.reuse is not None
+    stored = list(reversed(model.rollout_memory))
+    reused = generalized_batch(
+        model.policy, None, stored, model._reevaluate, ReuseSettings(model.reuse), 0.01, model.action_tensor
+    )
+    weights = model.reuse.per_sample(len(stored))
+    distances = []
+    for weight, segment in zip(weights, stored, strict=True):
+        observations = model.policy.obs_to_tensor(model._reevaluate(segment).observations)[0]
+        actions = th.as_tensor(segment.actions.reshape(segment.n_samples, -1).astype(np.float32))
+        log_prob = log_prob_of(model.policy, observations, actions, model.action_tensor).numpy()  # type: ignore[arg-type]
+        distances.append(weight * np.abs(np.exp(log_prob - segment.log_probs.reshape(-1)) - 1.0))
+    assert reused.n_batches == 3
+    assert reused.offpolicy_tv > 0
+    assert reused.offpolicy_tv == pytest.approx(float(np.concatenate(distances).mean()) / 2, rel=1e-5)
+
+
+def test_an_evaluation_that_skips_the_traces_is_named() -> None:
+    env = VecNormalize(make_vec_env("Pendulum-v1", n_envs=2, seed=1))
+    model = TRPOPlus("MlpPolicy", env, seed=0, sample_reuse="generalized", **TINY).learn(2 * 128)
+    assert model.reuse is not None
+    with pytest.raises(RuntimeError, match="must compute the segment's trace ratios"):
+        generalized_batch(
+            model.policy, None, list(model.rollout_memory), lambda segment, traces: model._reevaluate(segment),
+            ReuseSettings(model.reuse), 0.01, model.action_tensor,
+        )  # fmt: skip
 
 
 def test_save_load_keeps_the_memory_bit_exact(tmp_path: Path) -> None:
