@@ -17,12 +17,12 @@ on the training clock before each evaluation; ``--set rollout_workers=null overl
 recipe on the learner's own batched envs. One CSV per run: ``<out>/<name>/seed<k>.csv`` (``--name``: default the algorithm).
 
 Each run's JSON keeps its env steps per training second and the medians of the per-iteration update time and
-rollout-worker timings (``PHASES``). ``report`` prints, per name, the median env steps/s, the median and every
-seed's training seconds (and env steps) to the first evaluation at or above 0.90, and whether it stays there to the
-end of the budget; the plot shows success against training wall-clock, one line per seed
-(``<out>/time_to_grasp.png``); ``--compare X Y`` adds the probability that a run of folder X learns faster than one
-of folder Y, by the area under its success curve over env steps and over training seconds, with rliable's 95 %
-interval. Measure with nothing else running.
+rollout-worker timings (``PHASES``). ``report`` prints, per name, the median env steps/s, the median (with its 95 %
+bootstrap interval over seeds) and every seed's training seconds (and env steps) to the first evaluation at or
+above 0.90, and whether it stays there to the end of the budget; the plot shows success against training
+wall-clock, one line per seed (``<out>/time_to_grasp.png``); ``--compare X Y`` adds the probability that a run of
+folder X learns faster than one of folder Y, by the area under its success curve over env steps and over training
+seconds, with rliable's 95 % interval. Measure with nothing else running.
 """
 
 from __future__ import annotations
@@ -156,6 +156,21 @@ def first_at_target(rows: Sequence[dict[str, float]]) -> tuple[float, int, bool]
     return None
 
 
+def median_interval(values: Sequence[float], resamples: int = 20_000, seed: int = 0) -> tuple[float, float]:
+    """95 % percentile-bootstrap interval of the median of ``values`` (one per seed): how far the seeds at hand let
+    the median move. ``resamples`` draws of as many seeds with replacement, from a generator seeded with ``seed``."""
+    if len(values) == 0:
+        raise ValueError("median_interval needs at least one value")
+    draws = np.random.default_rng(seed).choice(np.asarray(values, dtype=np.float64), size=(resamples, len(values)))
+    low, high = np.percentile(np.median(draws, axis=1), [2.5, 97.5])
+    return float(low), float(high)
+
+
+def seed_number(path: Path) -> int:
+    """The seed of a run's file ``seed<k>.csv``: runs are listed in seed order (seed2 before seed10)."""
+    return int(path.stem.removeprefix("seed"))
+
+
 def sample_area(rows: Sequence[dict[str, float]], max_steps: float) -> float:
     """Learning speed in samples: the mean success over the evaluations at or before ``max_steps`` env steps (every
     run of the benchmark evaluates at the same step counts, so runs compared up to one ``max_steps`` share them)."""
@@ -223,12 +238,15 @@ def report(
         raise ValueError(f"no result folder {', '.join(missing)} under {out}")
     fig, axes = plt.subplots(1, max(len(names), 1), figsize=(5 * max(len(names), 1), 3.6), squeeze=False)
     for ax, folder in zip(axes[0], names, strict=False):
-        runs = {path.stem: read(path) for path in sorted(folder.glob("seed*.csv"))}
+        runs = {path.stem: read(path) for path in sorted(folder.glob("seed*.csv"), key=seed_number)}
         reached = {seed: first_at_target(rows) for seed, rows in runs.items()}
         times = [r[0] for r in reached.values() if r is not None]
         cells = [f"{seed}: {r[0]:.0f} s / {r[1]:,} steps{'' if r[2] else ' (not held)'}" if r else f"{seed}: not reached"
                  for seed, r in reached.items()]  # fmt: skip
         median = f"{np.median(times):.0f} s" if len(times) == len(runs) and times else "not every seed reached it"
+        if len(times) == len(runs) and len(times) > 1:
+            low, high = median_interval(times)
+            median += f" (95 % bootstrap interval over seeds {low:.0f}-{high:.0f} s)"
         speeds = [rows[-1]["timesteps"] / rows[-1]["train_seconds"] for rows in runs.values() if rows]
         speed = f"{np.median(speeds) / 1e3:.1f}k" if speeds else "no"
         print(f"{folder.name} ({speed} env steps/s): median {median}; " + "; ".join(cells))

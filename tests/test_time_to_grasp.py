@@ -32,8 +32,33 @@ def test_report_reads_every_run(tmp_path: Path, capsys) -> None:
     time_to_grasp.report(tmp_path)
     out = capsys.readouterr().out
     # env steps/s: the median over runs of steps / training seconds at the last evaluation (150,000 / 30 s)
-    assert "trpo_plus (5.0k env steps/s): median 25 s; seed0: 20 s / 100,000 steps; seed1: 30 s / 150,000 steps" in out
+    assert (
+        "trpo_plus (5.0k env steps/s): median 25 s (95 % bootstrap interval over seeds 20-30 s); "
+        "seed0: 20 s / 100,000 steps; seed1: 30 s / 150,000 steps"
+    ) in out
     assert (tmp_path / "time_to_grasp.png").is_file()
+
+
+def test_the_median_interval_of_two_seeds_by_hand() -> None:
+    """Two seeds: a resample's median is the first value (probability 1/4), their mean (1/2) or the second (1/4), so
+    the 2.5 % and 97.5 % percentiles are the two values."""
+    assert time_to_grasp.median_interval([40.0, 80.0]) == (40.0, 80.0)
+    assert time_to_grasp.median_interval([55.0, 55.0, 55.0]) == (55.0, 55.0)
+    low, high = time_to_grasp.median_interval([float(v) for v in range(1, 21)])
+    assert 5 < low < 10.5 < high < 16  # around the median 10.5, well inside the range 1-20
+    with pytest.raises(ValueError, match="at least one value"):
+        time_to_grasp.median_interval([])
+
+
+def test_runs_are_listed_in_seed_order(tmp_path: Path, capsys) -> None:
+    folder = tmp_path / "runs"
+    folder.mkdir()
+    for seed in (10, 2):
+        with (folder / f"seed{seed}.csv").open("w") as file:
+            file.write(f"timesteps,train_seconds,eval_seconds,success,mean_return\n50000,{seed}.0,1.0,0.95,0\n")
+    time_to_grasp.report(tmp_path)
+    out = capsys.readouterr().out
+    assert out.index("seed2: 2 s") < out.index("seed10: 10 s")
 
 
 def test_the_phase_recorder_keeps_what_the_logger_holds_at_each_rollout_end() -> None:
