@@ -78,8 +78,9 @@ def log_prob_of(policy: ActorCriticPolicy, observations: th.Tensor, actions: th.
 
 class TruncatedTraceRatios:
     """``c_t = min(pi_current / q, clip)`` of ``segment``'s ``actions`` (behaviour log-probabilities ``behaviour``), as
-    :data:`TraceRatios`. Keeps the current policy's log-probabilities it computed (``log_prob``): the update's
-    off-policy distance needs the same ones, so they are not computed twice."""
+    :data:`TraceRatios`. Keeps the observations it was given as a tensor (``observations``) and the current policy's
+    log-probabilities it computed (``log_prob``): the update's batch and off-policy distance need the same ones, so
+    they are not made twice."""
 
     def __init__(
         self, policy: ActorCriticPolicy, segment: Segment, actions: th.Tensor, behaviour: th.Tensor, clip: float,
@@ -87,11 +88,12 @@ class TruncatedTraceRatios:
     ) -> None:  # fmt: skip
         self.policy, self.segment, self.actions, self.behaviour = policy, segment, actions, behaviour
         self.clip, self.action_tensor = clip, action_tensor
+        self.observations: th.Tensor | None = None
         self.log_prob: th.Tensor | None = None
 
     def __call__(self, flat_observations: np.ndarray) -> np.ndarray:
-        observations = self.policy.obs_to_tensor(flat_observations)[0]
-        self.log_prob = log_prob_of(self.policy, observations, self.actions, self.action_tensor)  # type: ignore[arg-type]
+        self.observations = self.policy.obs_to_tensor(flat_observations)[0]  # type: ignore[assignment]
+        self.log_prob = log_prob_of(self.policy, self.observations, self.actions, self.action_tensor)  # type: ignore[arg-type]
         ratio = th.exp(th.clamp(self.log_prob - self.behaviour, -50.0, 50.0)).cpu().numpy()
         return np.minimum(ratio, self.clip).reshape(self.segment.n_steps, self.segment.n_envs)
 
@@ -142,10 +144,10 @@ def generalized_batch(
         behaviour = th.as_tensor(segment.log_probs.reshape(-1), device=device)
         traces = TruncatedTraceRatios(policy, segment, stored_actions, behaviour, settings.trace_clip, action_tensor)
         evaluation = evaluate(segment, traces)
-        if traces.log_prob is None:
+        if traces.log_prob is None or traces.observations is None:
             raise RuntimeError("generalized_batch: `evaluate` must compute the segment's trace ratios from its observations")
         current_log_prob.append(traces.log_prob)
-        observations.append(policy.obs_to_tensor(evaluation.observations)[0])  # type: ignore[arg-type]
+        observations.append(traces.observations)  # the evaluation's normalised observations, as the traces saw them
         actions.append(stored_actions)
         sampling.append(behaviour)
         advantages.append(th.as_tensor(evaluation.advantages.reshape(-1), device=device))
