@@ -3,23 +3,53 @@
 Each constructor keeps a table ``{argument: Rule}`` and checks its arguments with :func:`check_arguments` before it
 builds anything. Booleans are ``bool`` only; integers are ``int`` (or numpy integers), never ``bool`` or ``float``;
 numbers are finite ``int`` or ``float`` (or numpy numbers), never ``bool`` or ``str``; sequences of names are lists
-or tuples of ``str``, never one ``str``; ``None`` only where the argument's default is ``None``.
+or tuples of ``str``, never one ``str``; ``None`` only where the argument's default is ``None``. A bad argument, or a
+combination of arguments that cannot work, raises :class:`ArgumentError`; a command line's parser
+(:class:`CommandLineParser`) says what is wrong with it in one line.
 """
 
 from __future__ import annotations
 
+import argparse
 import types
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, NoReturn
 
 # the primitives are grasp_envs' (the options of its tasks follow the same rules)
 from grasp_envs.options import Rule, integer, is_int, is_keywords, is_names
 from grasp_envs.options import is_number as is_finite_number
 
 __all__ = [
-    "Rule", "boolean", "check_arguments", "choice", "integer", "is_bool", "is_finite_number", "is_int", "is_keywords",
-    "is_names", "is_schedule", "keywords", "names", "number", "optional",
-]  # fmt: skip
+    "ArgumentError",
+    "CommandLineParser",
+    "Rule",
+    "boolean",
+    "check_arguments",
+    "choice",
+    "integer",
+    "is_bool",
+    "is_finite_number",
+    "is_int",
+    "is_keywords",
+    "is_names",
+    "is_schedule",
+    "keywords",
+    "names",
+    "number",
+    "optional",
+]
+
+
+class ArgumentError(ValueError):
+    """An argument, or a combination of arguments, that cannot work; the message names each as the caller wrote it."""
+
+
+class CommandLineParser(argparse.ArgumentParser):
+    """argparse's parser whose errors are one line, ``<prog>: error: <message> (<prog> --help)``, exit status 2 (argparse
+    prints its usage block first)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} ({self.prog} --help)\n")
 
 
 def is_bool(value: Any) -> bool:
@@ -76,9 +106,9 @@ def choice(options: Sequence[str], *, optional: bool = False) -> Rule:
 
 
 def check_arguments(owner: str, rules: Mapping[str, Rule], arguments: Mapping[str, Any]) -> None:
-    """Raise ``ValueError`` naming the first of ``arguments`` that breaks its rule:
+    """Raise :class:`ArgumentError` naming the first of ``arguments`` that breaks its rule:
     ``"<owner>: `<name>` must be <requirement>, got <value>"``."""
     for name, value in arguments.items():
         rule = rules[name]
         if not rule.accepts(value):
-            raise ValueError(f"{owner}: `{name}` must be {rule.requirement}, got {value!r}")
+            raise ArgumentError(f"{owner}: `{name}` must be {rule.requirement}, got {value!r}")

@@ -16,9 +16,11 @@ What the subclass adds, each as an override of the rl-zoo3 method it concerns:
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import os
 import sys
+import types
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -165,13 +167,46 @@ def _zoo_manager(manager: type[ExperimentManager]) -> Iterator[None]:
         zoo_train_module.ExperimentManager = saved  # type: ignore[misc]
 
 
+@contextlib.contextmanager
+def zoo_parser(module: types.ModuleType, prog: str) -> Iterator[None]:
+    """rl-zoo3's script in ``module`` parses its flags with ``argparse.ArgumentParser()``: for one call, a parser named
+    ``prog`` whose errors (a flag it does not know, a bad value) are one line
+    (:class:`~sb3_trpo_plus.arguments.CommandLineParser`)."""
+    from sb3_trpo_plus.arguments import CommandLineParser
+
+    class ZooParser(CommandLineParser):
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            kwargs.setdefault("prog", prog)
+            super().__init__(*args, **kwargs)
+
+        def parse_known_args(self, *args: Any, **kwargs: Any) -> Any:
+            try:
+                return super().parse_known_args(*args, **kwargs)
+            except (NameError, SyntaxError) as error:  # rl-zoo3 evaluates the VALUE of KEY:VALUE flags as Python
+                self.error(
+                    f"the VALUE of each KEY:VALUE (-params/--hyperparams, --env-kwargs) is Python, {error} (a string "
+                    "is quoted: KEY:\"'text'\")"
+                )
+
+    one_line = types.ModuleType(argparse.__name__)
+    one_line.__dict__.update(vars(argparse))
+    one_line.ArgumentParser = ZooParser  # type: ignore[attr-defined]
+    saved = module.__dict__["argparse"]
+    module.__dict__["argparse"] = one_line
+    try:
+        yield
+    finally:
+        module.__dict__["argparse"] = saved
+
+
 def zoo_train(
     argv: Sequence[str], training_envs: TrainingEnvs | None = None, recipe_workers: RecipeWorkers | None = None
 ) -> None:
     """rl-zoo3's ``train`` with ``argv`` (rl-zoo3's flags) and :class:`TRPOPlusExperimentManager`, the training envs
-    built by ``training_envs`` where given, or by ``recipe_workers`` where the recipe has ``rollout_workers``."""
-    from rl_zoo3.train import train
+    built by ``training_envs`` where given, or by ``recipe_workers`` where the recipe has ``rollout_workers``. A flag
+    rl-zoo3 does not know, or a bad value of one, stops it with one line (``trpo-plus train: error: ...``)."""
+    import rl_zoo3.train as zoo_train_module
 
     manager = TRPOPlusExperimentManager.with_training_envs(training_envs, recipe_workers)
-    with zoo_command_line(argv), _zoo_manager(manager):
-        train()
+    with zoo_command_line(argv), _zoo_manager(manager), zoo_parser(zoo_train_module, "trpo-plus train"):
+        zoo_train_module.train()

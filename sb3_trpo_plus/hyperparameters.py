@@ -1,8 +1,10 @@
-"""What every constructor argument of :class:`~sb3_trpo_plus.TRPOPlus` accepts, and the check that names a bad one."""
+"""What every constructor argument of :class:`~sb3_trpo_plus.TRPOPlus` accepts, and the checks that name a bad one or
+a combination that cannot work."""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from typing import Any
 
 import torch as th
@@ -11,7 +13,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_trpo_plus.arguments import Rule, boolean, integer, number, optional
+from sb3_trpo_plus.arguments import ArgumentError, Rule, boolean, check_arguments, integer, number, optional
 from sb3_trpo_plus.segment import SegmentDictRolloutBuffer, SegmentRolloutBuffer
 
 VALUE_BASELINES = ("critic", "linear")
@@ -101,15 +103,53 @@ finite ``int`` or ``float`` (or numpy numbers), never ``bool`` or ``str``, or a 
 
 
 def validate_hyperparameters(**hyperparameters: Any) -> None:
-    """Raise ``ValueError`` naming the first hyperparameter that breaks its rule in ``HYPERPARAMETER_RULES``."""
+    """Raise :class:`~sb3_trpo_plus.arguments.ArgumentError` naming the first hyperparameter that breaks its rule in
+    ``HYPERPARAMETER_RULES``."""
     for name, value in hyperparameters.items():
         rule = HYPERPARAMETER_RULES.get(name)
         if rule is None:
             raise TypeError(f"TRPOPlus has no hyperparameter `{name}`")
         if not rule.accepts(value):
-            raise ValueError(f"TRPOPlus hyperparameter `{name}` must be {rule.requirement}, got {value!r}")
+            raise ArgumentError(f"TRPOPlus hyperparameter `{name}` must be {rule.requirement}, got {value!r}")
 
 
 def float_or_schedule(value: float | Schedule) -> float | Schedule:
     """A validated number as a Python float (SB3's ``FloatSchedule`` takes int and float only), a schedule as is."""
     return value if callable(value) else float(value)
+
+
+def check_combinations(hyperparameters: Mapping[str, Any]) -> None:
+    """Raise :class:`~sb3_trpo_plus.arguments.ArgumentError` naming hyperparameters that each pass their rule but do not
+    work together (those that need no env; ``hyperparameters``: every constructor argument these checks read, each
+    valid by itself):
+
+    - ``sample_reuse="generalized"`` reuses batches its own way: no ``replay_memory``, ``value_baseline="linear"``,
+      ``replay_critic`` or ``replay_is_clip`` beside it;
+    - its ``reuse_batches`` (``B``) is at most ``(reuse_max_batches + 1) / 2``, what equal weights over every batch
+      reach;
+    - ``overlap_collection`` learns from segments one update old, which only the generalized update corrects for.
+    """
+    generalized = hyperparameters["sample_reuse"] == "generalized"
+    if generalized:
+        conflicts = {
+            "replay_memory": hyperparameters["replay_memory"] > 0,
+            "value_baseline='linear'": hyperparameters["value_baseline"] == "linear",
+            "replay_critic": hyperparameters["replay_critic"],
+            "replay_is_clip": hyperparameters["replay_is_clip"] is not None,
+        }
+        if named := [name for name, conflict in conflicts.items() if conflict]:
+            raise ArgumentError(
+                f"TRPOPlus: sample_reuse='generalized' reuses batches its own way; it does not combine with {named}"
+            )
+        max_batches = hyperparameters["reuse_max_batches"]
+        most = (max_batches + 1) / 2
+        reachable = number(
+            lambda batches: batches <= most,
+            f"in [1, {most}] for `reuse_max_batches`={max_batches} (at most (`reuse_max_batches` + 1) / 2)",
+        )
+        check_arguments("TRPOPlus", {"reuse_batches": reachable}, {"reuse_batches": hyperparameters["reuse_batches"]})
+    if hyperparameters["overlap_collection"] and not generalized:
+        raise ArgumentError(
+            "TRPOPlus: overlap_collection=True learns from segments one update old; it needs "
+            f"sample_reuse='generalized' to correct for that, got sample_reuse={hyperparameters['sample_reuse']!r}"
+        )

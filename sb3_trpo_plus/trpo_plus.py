@@ -22,12 +22,14 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.utils import FloatSchedule, explained_variance
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_trpo_plus.arguments import ArgumentError, Rule, check_arguments
 from sb3_trpo_plus.baselines import LinearFeatureBaseline
 from sb3_trpo_plus.collection import SegmentCollection
 from sb3_trpo_plus.critic import Minibatch, buffer_minibatches, fit_critic, fit_linear_baseline, shuffled_minibatches
 from sb3_trpo_plus.generalized import ReuseSettings, fit_weighted_critic, generalized_batch
 from sb3_trpo_plus.hyperparameters import (
     HYPERPARAMETER_RULES,
+    check_combinations,
     float_or_schedule,
     validate_hyperparameters,
 )
@@ -193,7 +195,7 @@ class TRPOPlus(SegmentCollection, TRPO):
         if env is not None and not isinstance(env, str) and normalize_advantage:
             n_envs = env.num_envs if isinstance(env, VecEnv) else 1
             if n_steps * n_envs <= 1:
-                raise ValueError(f"TRPOPlus needs `n_steps * n_envs` > 1 to normalise advantages, got {n_steps} * {n_envs}")
+                raise ArgumentError(f"TRPOPlus needs `n_steps * n_envs` > 1 to normalise advantages, got {n_steps} * {n_envs}")
         super().__init__(
             policy, env, learning_rate=float_or_schedule(learning_rate), n_steps=n_steps, batch_size=batch_size,
             gamma=gamma, cg_max_steps=cg_max_steps, cg_damping=cg_damping,
@@ -214,24 +216,16 @@ class TRPOPlus(SegmentCollection, TRPO):
         self.reuse_trace_clip = float(reuse_trace_clip)
         self.reuse_kl_vary = reuse_kl_vary
         self.overlap_collection = overlap_collection
-        self._check_overlap()
-        if sample_reuse == "generalized":
-            conflicts = {"replay_memory": replay_memory > 0, "value_baseline='linear'": value_baseline == "linear",
-                         "replay_critic": replay_critic, "replay_is_clip": replay_is_clip is not None}  # fmt: skip
-            if named := [name for name, conflict in conflicts.items() if conflict]:
-                raise ValueError(
-                    f"TRPOPlus: sample_reuse='generalized' reuses batches its own way; it does not combine with {named}"
-                )
-            reuse_weights(self.reuse_batches, self.reuse_max_batches)  # names a B out of reach of M_max now
         self.replay_is_clip = None if replay_is_clip is None else float(replay_is_clip)
         self.replay_critic = replay_critic
         self.cg_warm_start = cg_warm_start
         self.cg_warm_start_rescale = cg_warm_start_rescale
         self.value_baseline = value_baseline
         self.linear_baseline_l2 = float(linear_baseline_l2)
+        self._check_combinations({name: arguments[name] for name in _COMBINED})  # as the caller wrote them
         array_spaces = spaces.Box | spaces.Discrete | spaces.MultiDiscrete | spaces.MultiBinary
         if self._needs_rollout_record and not isinstance(self.observation_space, array_spaces):
-            raise ValueError(
+            raise ArgumentError(
                 "`replay_memory` > 0 and `value_baseline='linear'` need an array observation space, "
                 f"got {type(self.observation_space).__name__}"
             )
@@ -257,12 +251,16 @@ class TRPOPlus(SegmentCollection, TRPO):
             return None
         return reuse_weights(self.reuse_batches, self.reuse_max_batches)
 
-    def _check_overlap(self) -> None:
-        """``overlap_collection`` learns from segments one update old: the generalized update corrects for that."""
-        if self.overlap_collection and self.sample_reuse != "generalized":
-            raise ValueError(
-                "TRPOPlus: overlap_collection=True learns from segments one update old; it needs "
-                f"sample_reuse='generalized' to correct for that, got sample_reuse={self.sample_reuse!r}"
+    def _check_combinations(self, hyperparameters: dict[str, Any] | None = None) -> None:
+        """Refuse hyperparameters that do not work together (:func:`~sb3_trpo_plus.hyperparameters.check_combinations`;
+        ``hyperparameters``: default, this model's), and ``overlap_collection`` on an env that is no pool of rollout
+        workers: it collects on them while the learner updates. At construction, and again at ``learn``: SB3's
+        ``load`` and ``set_env`` skip ``__init__``."""
+        check_combinations(hyperparameters or {name: getattr(self, name) for name in _COMBINED})
+        if self.overlap_collection and self.env is not None and rollout_workers(self.env) is None:
+            raise ArgumentError(
+                "TRPOPlus: overlap_collection=True collects on rollout workers while the learner updates; the env is "
+                f"{type(self.env).__name__}, not a pool of sb3_trpo_plus.rollouts (bare or under one VecNormalize)"
             )
 
     def _setup_model(self) -> None:
@@ -271,6 +269,9 @@ class TRPOPlus(SegmentCollection, TRPO):
         if self.rollout_buffer_class in (None, RolloutBuffer, DictRolloutBuffer):
             dict_space = isinstance(self.observation_space, spaces.Dict)
             self.rollout_buffer_class = SegmentDictRolloutBuffer if dict_space else SegmentRolloutBuffer
+        else:  # the buffer is built here, for the env's observations: a class for the other kind is named
+            rules = _buffer_rules(self.observation_space)
+            check_arguments("TRPOPlus", rules, {"rollout_buffer_class": self.rollout_buffer_class})
         super()._setup_model()
         self._update_target_kl()
         self._actor_params = actor_parameters(self.policy)
@@ -290,12 +291,7 @@ class TRPOPlus(SegmentCollection, TRPO):
         progress_bar: bool = False,
     ) -> tuple[int, BaseCallback]:
         reset = reset_num_timesteps or self._last_obs is None
-        self._check_overlap()  # again: SB3's load() sets the arguments it is given without __init__'s checks
-        if self.overlap_collection and self.env is not None and rollout_workers(self.env) is None:
-            raise ValueError(
-                "TRPOPlus: overlap_collection=True collects on rollout workers while the learner updates; the env is "
-                f"{type(self.env).__name__}, not a pool of sb3_trpo_plus.rollouts (bare or under one VecNormalize)"
-            )
+        self._check_combinations()  # again: SB3's load() sets the arguments it is given without __init__'s checks
         if reset:  # SB3 resets the env, which drops a segment ordered before
             self._overlap_ordered = False
         states, self._rng_states = self._rng_states, None
@@ -606,6 +602,31 @@ class TRPOPlus(SegmentCollection, TRPO):
         # (_setup_learn); until then the program's generators are as SB3's load leaves them (seeded with model.seed)
         _upgrade_from_0_1(model)
         return model
+
+
+_COMBINED = (
+    "sample_reuse",
+    "replay_memory",
+    "value_baseline",
+    "replay_critic",
+    "replay_is_clip",
+    "reuse_batches",
+    "reuse_max_batches",
+    "overlap_collection",
+)
+"""The hyperparameters :func:`~sb3_trpo_plus.hyperparameters.check_combinations` reads."""
+
+
+def _buffer_rules(observation_space: spaces.Space) -> dict[str, Rule]:
+    """``rollout_buffer_class`` for the env's observations: the ``Dict`` buffer for ``Dict`` observations only."""
+    dict_space = isinstance(observation_space, spaces.Dict)
+    fits = SegmentDictRolloutBuffer if dict_space else SegmentRolloutBuffer
+    space = f"the env's {type(observation_space).__name__} observation space"
+
+    def accepts(value: type | None) -> bool:
+        return value is None or issubclass(value, DictRolloutBuffer) == dict_space
+
+    return {"rollout_buffer_class": Rule(accepts, f"None or a subclass of {fits.__name__} for {space}")}
 
 
 def _upgrade_from_0_1(model: TRPOPlus) -> None:

@@ -15,6 +15,8 @@ import yaml
 from gymnasium.envs.registration import registry
 from torch import nn
 
+from sb3_trpo_plus.arguments import ArgumentError
+
 if TYPE_CHECKING:
     from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
@@ -58,7 +60,7 @@ POLICY_KWARGS_KEYS = {"net_arch", "activation_fn", "log_std_init", "ortho_init",
                       "use_expln", "share_features_extractor", "optimizer_kwargs"}  # fmt: skip
 
 
-class HyperparameterError(ValueError):
+class HyperparameterError(ArgumentError):
     """A hyperparameter file that cannot be used; the message names the file, the env and the key."""
 
 
@@ -149,6 +151,8 @@ def load_hyperparameters(path: str | Path, algo: str, env_ids: list[str] | None 
         raise HyperparameterError(f"unknown algorithm {algo!r} (known: {sorted(algos)})")
     try:
         data = yaml.safe_load(path.read_text())
+    except OSError as error:
+        raise HyperparameterError(f"{path}: cannot read: {error.strerror or error}") from None
     except yaml.YAMLError as error:
         raise HyperparameterError(f"{path}: malformed YAML: {error}") from None
     if not isinstance(data, dict):
@@ -267,8 +271,36 @@ def _our_env_ids() -> tuple[str, ...]:
     return batch_engine_ids()
 
 
+def check_constructor_values(entry: dict[str, Any], where: str) -> None:
+    """The values of a TRPOPlus recipe's constructor arguments as the constructor checks them, before anything is
+    built: each in its range (:data:`~sb3_trpo_plus.hyperparameters.HYPERPARAMETER_RULES`; ``lin_<x>`` schedules
+    as ``x``) and together (:func:`~sb3_trpo_plus.hyperparameters.check_combinations`, the constructor's defaults
+    for the arguments the recipe leaves out). :class:`HyperparameterError` names ``where`` (the file and the env)
+    and the key."""
+    from sb3_trpo_plus.hyperparameters import HYPERPARAMETER_RULES, check_combinations
+    from sb3_trpo_plus.trpo_plus import TRPOPlus
+
+    for key, value in entry.items():
+        rule = HYPERPARAMETER_RULES.get(key)
+        if key in {"policy", "policy_kwargs"} or rule is None:  # checked by load_hyperparameters, or no argument
+            continue
+        if key in SCHEDULE_KEYS and isinstance(value, str):
+            try:
+                value = float(value.removeprefix("lin_"))
+            except ValueError:
+                raise HyperparameterError(f"{where}: {key}: expected a schedule 'lin_<number>', got {value!r}") from None
+        if not rule.accepts(value):
+            raise HyperparameterError(f"{where}: {key}: must be {rule.requirement}, got {entry[key]!r}")
+    defaults = {name: parameter.default for name, parameter in inspect.signature(TRPOPlus).parameters.items()}
+    try:
+        check_combinations({**defaults, **entry})
+    except ArgumentError as error:
+        raise HyperparameterError(f"{where}: {error}") from None
+
+
 def config_module(algo: str, path: str | Path | None = None) -> str:
-    """Validate our YAML for ``algo`` and expose it to rl-zoo3 as an importable module; return its name.
+    """Validate our YAML for ``algo`` (for ``trpo_plus`` its values too: :func:`check_constructor_values`) and expose
+    it to rl-zoo3 as an importable module; return its name.
 
     rl-zoo3's ``-conf`` accepts a module with a ``hyperparams`` attribute: this avoids writing files and
     makes rl-zoo3 use exactly the validated values.
@@ -276,7 +308,11 @@ def config_module(algo: str, path: str | Path | None = None) -> str:
     path = Path(path) if path is not None else ZOO_DIR / ALGO_FILES[algo]
     name = f"_sb3_trpo_plus_hyperparams_{algo}"
     module = types.ModuleType(name)
-    module.hyperparams = load_hyperparameters(path, algo)  # type: ignore[attr-defined]
+    hyperparams = load_hyperparameters(path, algo)
+    if algo == "trpo_plus":
+        for env_id, entry in hyperparams.items():
+            check_constructor_values(entry, f"{path}: {env_id}")
+    module.hyperparams = hyperparams  # type: ignore[attr-defined]
     sys.modules[name] = module
     return name
 

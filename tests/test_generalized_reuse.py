@@ -146,7 +146,7 @@ def test_every_collection_path_learns(collector: str) -> None:
     [
         ({"replay_memory": 2}, "does not combine with \\['replay_memory'\\]"),
         ({"value_baseline": "linear"}, "value_baseline='linear'"),
-        ({"reuse_batches": 6}, "batches must be in \\[1, 5.5\\]"),
+        ({"reuse_batches": 6}, "`reuse_batches` must be a finite number in \\[1, 5.5\\] for `reuse_max_batches`=10"),
         ({"reuse_trace_clip": 0}, "`reuse_trace_clip` must be a finite number > 0"),
     ],
 )
