@@ -47,9 +47,12 @@ def training_envs(
 
     config = model_settings(env_id, variant)
     kwargs: dict[str, Any] = dict(
-        n_envs=config.n_envs, seed=seed, env_kwargs=config.env_kwargs, wrapper_class=train_wrapper_class(env_id, variant),
+        n_envs=config.n_envs,
+        seed=seed,
+        env_kwargs=config.env_kwargs,
+        wrapper_class=train_wrapper_class(env_id, variant),
         monitor_kwargs=monitor_kwargs,
-    )  # fmt: skip
+    )
     if vec_env == "batch":
         from sb3_trpo_plus.zoo import batch_training_env
 

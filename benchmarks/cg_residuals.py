@@ -56,10 +56,14 @@ def measure(env_id: str, updates: int, seed: int) -> dict[str, Any]:
         if x0 is not None and bool(th.any(x0 != 0)):
             zero = conjugate_gradient(fvp, b, None, max_iter=kwargs["max_iter"])
             scale = max(float(th.linalg.vector_norm(b)), 1e-30)
-            rows.append({
-                "warm": [r / scale for r in warm.residual_norms], "zero": [r / scale for r in zero.residual_norms],
-                "warm_products": warm.matvecs, "zero_products": zero.matvecs,
-            })  # fmt: skip
+            rows.append(
+                {
+                    "warm": [r / scale for r in warm.residual_norms],
+                    "zero": [r / scale for r in zero.residual_norms],
+                    "warm_products": warm.matvecs,
+                    "zero_products": zero.matvecs,
+                }
+            )
         return warm
 
     update_module.conjugate_gradient = solve_both  # type: ignore[assignment]
@@ -87,8 +91,15 @@ def summary(result: dict[str, Any]) -> list[str]:
     lines.append("iteration | " + " | ".join(str(i) for i in range(depth)))
     lines.append("zero start | " + " | ".join(f"{v:.3f}" for v in zero))
     lines.append("warm start | " + " | ".join(f"{v:.3f}" for v in warm))
-    header = ("residual level", "updates", "products, zero start", "products, warm start", "warm - zero (mean)",
-              "warm fewer", "warm more")  # fmt: skip
+    header = (
+        "residual level",
+        "updates",
+        "products, zero start",
+        "products, warm start",
+        "warm - zero (mean)",
+        "warm fewer",
+        "warm more",
+    )
     lines.append("| " + " | ".join(header) + " |")
     lines.append("|---|---|---|---|---|---|---|")
     for level in LEVELS:

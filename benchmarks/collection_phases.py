@@ -124,8 +124,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = parser.parse_args(argv)
     results = {threads: measure(args.env, threads, args.segments, args.repeats) for threads in args.sim_threads}
     text = table(results)
-    print(f"{args.env}, {results[args.sim_threads[0]]['n_envs']} envs x {results[args.sim_threads[0]]['n_steps']} "
-          f"steps per segment, ms per segment (median of {args.repeats} repeats of {args.segments} segments)")  # fmt: skip
+    print(
+        f"{args.env}, {results[args.sim_threads[0]]['n_envs']} envs x {results[args.sim_threads[0]]['n_steps']} "
+        f"steps per segment, ms per segment (median of {args.repeats} repeats of {args.segments} segments)"
+    )
     print(text)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     machine = {"cpu": cpu_name(), "python": platform.python_version(), "torch": th.__version__}

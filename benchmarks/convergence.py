@@ -88,21 +88,27 @@ def main(argv: Sequence[str] | None = None) -> None:
     again.add_argument("--jobs", type=int, default=2)
     again.add_argument("--timesteps", type=int, nargs="+", default=None, help="only the checkpoints at these")
     again.add_argument(
-        "--confirm", action="store_true",
+        "--confirm",
+        action="store_true",
         help=f"the confirmation protocol: {REEVALUATION_EPISODES} episodes from {REEVALUATION_SEED}, then "
         f"{CONFIRMATION_EPISODES} from each of {', '.join(map(str, CONFIRMATION_SEEDS))} where those fall below the target",
-    )  # fmt: skip
+    )
     for command in (run, job, report, agents, again):
         command.add_argument("--out", default=str(OUT))
     for command in (run, job):
         command.add_argument(
-            "--keep-checkpoints", type=Path, default=None, metavar="DIR",
+            "--keep-checkpoints",
+            type=Path,
+            default=None,
+            metavar="DIR",
             help="also keep every chunk's checkpoint, in DIR/<timesteps>/<env>/<variant>/seed<k>/",
-        )  # fmt: skip
+        )
         command.add_argument(
-            "--vec-env", choices=("dummy", "batch"), default="dummy",
+            "--vec-env",
+            choices=("dummy", "batch"),
+            default="dummy",
             help="training envs: SB3's DummyVecEnv or the batched engine (the same transitions, faster)",
-        )  # fmt: skip
+        )
     args = parser.parse_args(argv)
     out = Path(args.out)
     if args.command == "run":

@@ -55,8 +55,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--envs", nargs="+", default=list(grasp_envs.ENV_IDS), choices=grasp_envs.ENV_IDS)
     args = parser.parse_args()
-    print(f"machine: {cpu_name()}, python {platform.python_version()}, "
-          f"mujoco {mujoco.__version__}, gymnasium {gym.__version__}")  # fmt: skip
+    print(
+        f"machine: {cpu_name()}, python {platform.python_version()}, mujoco {mujoco.__version__}, gymnasium {gym.__version__}"
+    )
     print("\n| env | frame_skip | raw mj_step (µs / env step) | env.step (µs) | overhead ratio | env steps/s |")
     print("|---|---|---|---|---|---|")
     for env_id in args.envs:

@@ -71,8 +71,9 @@ def main() -> None:
         return
     env_kwargs = {"reward_mode": args.reward_mode, **args.env_kwargs}
     monitor = {"info_keywords": ("is_success",)}
-    venv = make_vec_env(args.env, n_envs=8, seed=args.seed + 1000 * len(log["chunks"]), env_kwargs=env_kwargs,
-                        monitor_kwargs=monitor)  # fmt: skip
+    venv = make_vec_env(
+        args.env, n_envs=8, seed=args.seed + 1000 * len(log["chunks"]), env_kwargs=env_kwargs, monitor_kwargs=monitor
+    )
     algo = ALGOS[args.algo]
     if model_path.exists() and stats_path.exists():
         env = VecNormalize.load(str(stats_path), venv)
@@ -84,8 +85,19 @@ def main() -> None:
     else:
         env = VecNormalize(venv, gamma=0.995)
         policy_kwargs = dict(net_arch=[100, 100], activation_fn=nn.Tanh)
-        model = algo("MlpPolicy", env, n_steps=1024, batch_size=1024, gamma=0.995, gae_lambda=0.97, target_kl=0.01,
-                     cg_max_steps=10, seed=args.seed, policy_kwargs=policy_kwargs, **args.model_kwargs)  # fmt: skip
+        model = algo(
+            "MlpPolicy",
+            env,
+            n_steps=1024,
+            batch_size=1024,
+            gamma=0.995,
+            gae_lambda=0.97,
+            target_kl=0.01,
+            cg_max_steps=10,
+            seed=args.seed,
+            policy_kwargs=policy_kwargs,
+            **args.model_kwargs,
+        )
     while model.num_timesteps < args.steps:
         stats = EpisodeStats()
         start = time.time()
@@ -94,11 +106,16 @@ def main() -> None:
         env.save(str(stats_path))
         returns = [e[0] for e in stats.episodes]
         lifts = [e[1] for e in stats.episodes]
-        log["chunks"].append({"timesteps": int(model.num_timesteps), "episodes": len(stats.episodes),
-                              "lift_rate": float(np.mean(lifts)) if lifts else 0.0,
-                              "mean_return": float(np.mean(returns)) if returns else float("nan"),
-                              "mean_length": float(np.mean([e[2] for e in stats.episodes])) if stats.episodes else 0.0,
-                              "seconds": time.time() - start})  # fmt: skip
+        log["chunks"].append(
+            {
+                "timesteps": int(model.num_timesteps),
+                "episodes": len(stats.episodes),
+                "lift_rate": float(np.mean(lifts)) if lifts else 0.0,
+                "mean_return": float(np.mean(returns)) if returns else float("nan"),
+                "mean_length": float(np.mean([e[2] for e in stats.episodes])) if stats.episodes else 0.0,
+                "seconds": time.time() - start,
+            }
+        )
         log_path.write_text(json.dumps(log, indent=1))
         print(json.dumps(log["chunks"][-1]), flush=True)
 
@@ -118,9 +135,16 @@ def diagnose(
     model = algo.load(model_path, env=env)
     assert isinstance(venv, DummyVecEnv)  # make_vec_env's default
     arm: Any = venv.envs[0].unwrapped
-    rows: dict[str, list[float]] = {"grip-cube distance (m)": [], "right half touches": [], "left half touches": [],
-                                    "claw angle (rad)": [], "claw action": [], "forearm axis z": [], "cube height (m)": [],
-                                    "cube between the halves": []}  # fmt: skip
+    rows: dict[str, list[float]] = {
+        "grip-cube distance (m)": [],
+        "right half touches": [],
+        "left half touches": [],
+        "claw angle (rad)": [],
+        "claw action": [],
+        "forearm axis z": [],
+        "cube height (m)": [],
+        "cube between the halves": [],
+    }
     for _ in range(episodes):
         obs: Any = env.reset()
         for _ in range(100):

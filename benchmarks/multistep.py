@@ -58,10 +58,18 @@ class MultiStepTRPOPlus(TRPOPlus):
                 distribution = self.policy.get_distribution(batch.observations)
             first_start = warm_start_from(self.previous_step) if self.cg_warm_start else no_warm_start
             step = natural_gradient_step(
-                self.policy, self._actor_params, batch, actions, distribution, surrogate, anchor, step_kl=step_kl,
-                max_kl=radius, settings=self.natural_gradient_settings,
+                self.policy,
+                self._actor_params,
+                batch,
+                actions,
+                distribution,
+                surrogate,
+                anchor,
+                step_kl=step_kl,
+                max_kl=radius,
+                settings=self.natural_gradient_settings,
                 warm_start=first_start if index == 0 else no_warm_start,
-            )  # fmt: skip
+            )
             steps.append(step)
             if step.applied_step is None:
                 break

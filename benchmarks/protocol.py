@@ -107,8 +107,13 @@ def reevaluate(
 
     def record(job: tuple[str, str, int, int, Path], result: tuple[float, float]) -> None:
         env_id, variant, seed, timesteps, _ = job
-        row = {"timesteps": timesteps, "episodes": episodes, "reset_seed": reset_seed,
-               "eval_success": result[1], "eval_return": round(result[0], 4)}  # fmt: skip
+        row = {
+            "timesteps": timesteps,
+            "episodes": episodes,
+            "reset_seed": reset_seed,
+            "eval_success": result[1],
+            "eval_return": round(result[0], 4),
+        }
         write_reevaluation(out, env_id, variant, seed, row)
         print(f"{env_id} {variant} seed{seed} {timesteps}: success {result[1]:.3f}", flush=True)
 
@@ -126,17 +131,23 @@ def reevaluate(
         for job in todo:
             record(job, evaluate_checkpoint(job[0], job[1], job[4], episodes, reset_seed))
     for env_id, variant, seed in runs:
-        rows = [row for row in reevaluations(out, env_id, variant, seed, episodes, reset_seed, after)
-                if not timesteps or row["timesteps"] in timesteps]  # fmt: skip
+        rows = [
+            row
+            for row in reevaluations(out, env_id, variant, seed, episodes, reset_seed, after)
+            if not timesteps or row["timesteps"] in timesteps
+        ]
         target = TARGETS.get(env_id, 0.0)
         reached = sum(row["eval_success"] >= target for row in rows)
         lowest = min(row["eval_success"] for row in rows)
-        print(f"{env_id} {variant} seed{seed}: {reached} of {len(rows)} evaluations past {after} >= {target} "
-              f"(lowest {lowest:.3f})")  # fmt: skip
+        print(
+            f"{env_id} {variant} seed{seed}: {reached} of {len(rows)} evaluations past {after} >= {target} "
+            f"(lowest {lowest:.3f})"
+        )
 
 
-def confirm(kept: Path, out: Path, envs: Sequence[str], variants: Sequence[str], seeds: Sequence[int], after: int,
-            jobs: int) -> dict[tuple[str, str, int], bool | None]:  # fmt: skip
+def confirm(
+    kept: Path, out: Path, envs: Sequence[str], variants: Sequence[str], seeds: Sequence[int], after: int, jobs: int
+) -> dict[tuple[str, str, int], bool | None]:
     """The confirmation protocol end to end: every checkpoint past ``after`` on REEVALUATION_EPISODES from
     REEVALUATION_SEED, then each one those leave undecided (below the env's target) on CONFIRMATION_EPISODES from each
     of CONFIRMATION_SEEDS; evaluations already recorded are not run again. Prints and returns each run's verdict."""
@@ -155,9 +166,11 @@ def confirm(kept: Path, out: Path, envs: Sequence[str], variants: Sequence[str],
         below = [t for t, row in first.items() if row is not None and row["eval_success"] < target]  # by this call or another
         confirmed = ", ".join(f"{t}: {pooled_success(at(rows, t)):.3f}" for t in below)
         episodes = REEVALUATION_EPISODES + len(CONFIRMATION_SEEDS) * CONFIRMATION_EPISODES
-        print(f"{env_id} {variant} seed{seed}: {word} ({len(checkpoints)} checkpoints past {after}; below {target} on "
-              f"{REEVALUATION_EPISODES} episodes: {len(below)}{f', on {episodes}: {confirmed}' if below else ''})",
-              flush=True)  # fmt: skip
+        print(
+            f"{env_id} {variant} seed{seed}: {word} ({len(checkpoints)} checkpoints past {after}; below {target} on "
+            f"{REEVALUATION_EPISODES} episodes: {len(below)}{f', on {episodes}: {confirmed}' if below else ''})",
+            flush=True,
+        )
     return verdicts
 
 

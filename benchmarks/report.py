@@ -64,8 +64,19 @@ BOOTSTRAP_SEED = 0
 # + the env's index) nor of the study's 20-episode evaluations (protocol.EVAL_SEED)
 AGENT_SEED = 20_000
 # the keys export_agents writes in an agents.json entry; merged_entry keeps the entry's others (added by hand)
-EXPORTED_KEYS = ("variant", "seed", "timesteps", "study_eval_success", "success_rate", "mean_reward", "episodes",
-                 "eval_seed", "platform", "env_kwargs", "video")  # fmt: skip
+EXPORTED_KEYS = (
+    "variant",
+    "seed",
+    "timesteps",
+    "study_eval_success",
+    "success_rate",
+    "mean_reward",
+    "episodes",
+    "eval_seed",
+    "platform",
+    "env_kwargs",
+    "video",
+)
 
 
 def complete_runs(out: Path, env_id: str, variant: str) -> dict[int, list[dict[str, float]]]:
@@ -260,8 +271,10 @@ def target_table(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]
                     f"{again_passed} of {sum(map(len, again.values()))} (seeds {', '.join(map(str, again))}; "
                     f"every one: {_seed_count(every, len(again))})"
                 )
-            verdicts = {s: seed_verdict(read_reevaluation(out, env_id, variant, s), [r["timesteps"] for r in seeds[s][n:]],
-                                        target) for s, n in split.items()}  # fmt: skip
+            verdicts = {
+                s: seed_verdict(read_reevaluation(out, env_id, variant, s), [r["timesteps"] for r in seeds[s][n:]], target)
+                for s, n in split.items()
+            }
             confirmation_cell = "—"  # the confirmation protocol's verdicts
             if any(verdict is not None for verdict in verdicts.values()):
                 confirmation_cell = _seed_count({s for s, v in verdicts.items() if v}, len(seeds)) + " pass"
@@ -280,8 +293,15 @@ def target_table(env_id: str, runs: dict[str, dict[int, list[dict[str, float]]]]
 
 
 def diagnostics_table(runs: dict[str, dict[int, list[dict[str, float]]]]) -> list[str]:
-    keys = ["kl_overshoot", "line_search_steps", "cg_residual", "cg_relative_residual", "step_gradient_cosine",
-            "warm_start_cosine", "replay_ess"]  # fmt: skip
+    keys = [
+        "kl_overshoot",
+        "line_search_steps",
+        "cg_residual",
+        "cg_relative_residual",
+        "step_gradient_cosine",
+        "warm_start_cosine",
+        "replay_ess",
+    ]
     lines = ["| variant | " + " | ".join(keys) + " |", "|---" * (len(keys) + 1) + "|"]
     for variant, seeds in runs.items():
         if not seeds:
@@ -310,8 +330,16 @@ def interval_estimates(score_dict: dict[str, Any], statistic: Any) -> Any:
     return rly.get_interval_estimates(score_dict, statistic, reps=2000, random_state=np.random.RandomState(BOOTSTRAP_SEED))
 
 
-THESIS_PAIRS = (("replay", "plain"), ("warm", "plain"), ("both", "plain"), ("both", "replay"), ("both", "warm"),
-                ("replay", "trpo"), ("replay", "ppo"), ("plain", "trpo"))  # fmt: skip
+THESIS_PAIRS = (
+    ("replay", "plain"),
+    ("warm", "plain"),
+    ("both", "plain"),
+    ("both", "replay"),
+    ("both", "warm"),
+    ("replay", "trpo"),
+    ("replay", "ppo"),
+    ("plain", "trpo"),
+)
 """The probabilities of improvement of the thesis' study (its variants: ``STUDY_VARIANTS``)."""
 
 REUSE_VARIANTS = ("generalized_reuse", "plain", "trpo", "ppo")
@@ -607,8 +635,10 @@ def write_report(out: Path, docs: Path, tables_page: Path | None = None) -> None
     aggregates.append(("generalized sample reuse on every task, success or return", "Generalized sample reuse, every task"))
     body += ["## Generalized sample reuse, every task", "", *improvement_section(all_runs, REUSE_PAIRS), ""]
     for i, comparison in enumerate(BUDGET_COMPARISONS):  # study.yml's, across env ids or budgets
-        heading = (f"{LABELS[comparison.variant]} on {comparison.env} against {LABELS[comparison.baseline]} on "
-                   f"{comparison.baseline_env}, to {_steps(comparison.budget)}")  # fmt: skip
+        heading = (
+            f"{LABELS[comparison.variant]} on {comparison.env} against {LABELS[comparison.baseline]} on "
+            f"{comparison.baseline_env}, to {_steps(comparison.budget)}"
+        )
         aggregates.append((heading, heading))
         image = images / f"results_budget_comparison_{i}.png"
         body += [f"## {heading}", "", *budget_comparison_section(out, comparison, image, tables_page), ""]

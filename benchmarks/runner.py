@@ -118,13 +118,17 @@ def run_job(
         for values in diagnostics.values():
             values.clear()
         row = {
-            "timesteps": done, "train_seconds": round(seconds, 2), "eval_success": eval_success,
-            "eval_return": round(eval_return, 4), "train_success": float(np.mean(successes)) if successes else float("nan"),
-            "train_return": round(float(np.mean(returns)), 4) if returns else float("nan"), "train_episodes": len(returns),
+            "timesteps": done,
+            "train_seconds": round(seconds, 2),
+            "eval_success": eval_success,
+            "eval_return": round(eval_return, 4),
+            "train_success": float(np.mean(successes)) if successes else float("nan"),
+            "train_return": round(float(np.mean(returns)), 4) if returns else float("nan"),
+            "train_episodes": len(returns),
             **{k: round(v, 5) for k, v in means.items()},
             "kl_overshoot": round(overshoot, 4),
             "resumed": resumed,
-        }  # fmt: skip
+        }
         resumed = 0.0
         # not the wrappers of train() and of the progress
         atomic_replace(lambda p: model.save(p, exclude=["train", "_update_current_progress_remaining"]), model_path)
@@ -175,8 +179,22 @@ def run_study(
 
     def launch(job: tuple[str, str, int, int]) -> None:
         env_id, variant, seed, budget = job
-        command = [sys.executable, "-m", "benchmarks.convergence", "job", "--env", env_id, "--variant", variant,
-                   "--seed", str(seed), "--steps", str(budget), "--out", str(out)]  # fmt: skip
+        command = [
+            sys.executable,
+            "-m",
+            "benchmarks.convergence",
+            "job",
+            "--env",
+            env_id,
+            "--variant",
+            variant,
+            "--seed",
+            str(seed),
+            "--steps",
+            str(budget),
+            "--out",
+            str(out),
+        ]
         if keep is not None:
             command += ["--keep-checkpoints", str(keep)]
         command += ["--vec-env", vec_env]

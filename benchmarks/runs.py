@@ -32,9 +32,17 @@ DIAGNOSTICS = {
     "std": "train/std",
 }
 COLUMNS = [
-    "timesteps", "train_seconds", "eval_success", "eval_return", "train_success", "train_return", "train_episodes",
-    *DIAGNOSTICS, "kl_overshoot", "resumed",
-]  # fmt: skip
+    "timesteps",
+    "train_seconds",
+    "eval_success",
+    "eval_return",
+    "train_success",
+    "train_return",
+    "train_episodes",
+    *DIAGNOSTICS,
+    "kl_overshoot",
+    "resumed",
+]
 REEVALUATION_COLUMNS = ["timesteps", "episodes", "reset_seed", "eval_success", "eval_return"]
 CHECKPOINT_FILES = ("model.zip", "vecnormalize.pkl")
 

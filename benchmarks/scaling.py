@@ -82,8 +82,15 @@ def collection_rate(env_id: str, label: str, n_envs: int, samples: int, repeats:
     else:
         env = make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=vec_env_cls, vec_env_kwargs=kwargs)
     n_steps = max(samples // n_envs, 1)
-    model = TRPOPlus("MlpPolicy", env, n_steps=n_steps, batch_size=n_steps * n_envs, seed=0,
-                     policy_kwargs=dict(net_arch=[100, 100]), device="cpu")  # fmt: skip
+    model = TRPOPlus(
+        "MlpPolicy",
+        env,
+        n_steps=n_steps,
+        batch_size=n_steps * n_envs,
+        seed=0,
+        policy_kwargs=dict(net_arch=[100, 100]),
+        device="cpu",
+    )
     model._setup_learn(10**9, None)
     callback = CallbackList([])
     callback.init_callback(model)
@@ -116,9 +123,12 @@ def main() -> None:
     th.set_num_threads(1)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    results: dict = {"machine": {"cpu": cpu_name(), "cores": os.cpu_count(),
-                                 "python": platform.python_version(), "torch": th.__version__},
-                     "samples": args.samples, "repeats": args.repeats, "envs": {}}  # fmt: skip
+    results: dict = {
+        "machine": {"cpu": cpu_name(), "cores": os.cpu_count(), "python": platform.python_version(), "torch": th.__version__},
+        "samples": args.samples,
+        "repeats": args.repeats,
+        "envs": {},
+    }
     for env_id in args.envs:
         raw = time_env_step(env_id, 5000)
         rows = {}
@@ -133,8 +143,10 @@ def main() -> None:
         first = min(args.counts)
         base = rows[f"{args.vec_envs[0]}-{first}"]["steps_per_s"]
         print(f"\n## {env_id} (raw env.step {raw * 1e6:.0f} µs = {1 / raw:,.0f} steps/s in one process)")
-        print(f"| vec env | n_envs | env steps/s | speed-up vs {args.vec_envs[0]} at {first} | vs 1 worker | "
-              "collection time / raw env.step | physics share |")  # fmt: skip
+        print(
+            f"| vec env | n_envs | env steps/s | speed-up vs {args.vec_envs[0]} at {first} | vs 1 worker | "
+            "collection time / raw env.step | physics share |"
+        )
         print("|---|---|---|---|---|---|---|")
         for row in sorted(rows.values(), key=lambda r: (list(VEC_ENVS).index(r["vec_env"]), r["n_envs"])):
             row["speedup"] = row["steps_per_s"] / base

@@ -136,9 +136,14 @@ def build(name: str, env_id: str, n_envs: int, n_steps: int, seed: int, sim_thre
     else:
         env = make_vec_env(env_id, n_envs=n_envs, seed=seed)
     common: dict[str, Any] = dict(
-        n_steps=n_steps, batch_size=n_steps * n_envs // 4, cg_max_steps=10, n_critic_updates=10, seed=seed,
-        policy_kwargs=dict(net_arch=[100, 100], activation_fn=nn.Tanh), device="cpu",
-    )  # fmt: skip
+        n_steps=n_steps,
+        batch_size=n_steps * n_envs // 4,
+        cg_max_steps=10,
+        n_critic_updates=10,
+        seed=seed,
+        policy_kwargs=dict(net_arch=[100, 100], activation_fn=nn.Tanh),
+        device="cpu",
+    )
     if name == "sb3_contrib.TRPO":
         return TRPO("MlpPolicy", env, **common)
     if name in ("TRPOPlus", BATCHED):
@@ -224,11 +229,13 @@ def main() -> None:
         summary: dict[str, Any] = {}
         for name, name_rows in rows.items():
             summary[name] = {
-                key: {"median": float(np.median([r[key] for r in name_rows])),
-                      "min": float(np.min([r[key] for r in name_rows])),
-                      "max": float(np.max([r[key] for r in name_rows]))}
+                key: {
+                    "median": float(np.median([r[key] for r in name_rows])),
+                    "min": float(np.min([r[key] for r in name_rows])),
+                    "max": float(np.max([r[key] for r in name_rows])),
+                }
                 for key in name_rows[0]
-            }  # fmt: skip
+            }
         anchor = summary["sb3_contrib.TRPO"]
         raw = summary["raw_mj_step"]["total"]["median"]
         for name in contenders:
@@ -241,16 +248,20 @@ def main() -> None:
             s["ratio_rollout_vs_trpo"] = s["rollout"]["median"] / anchor["rollout"]["median"]
         results["envs"][env_id] = summary
         print(f"\n## {env_id}  ({samples} samples / iteration, raw mj_step {raw * 1e3:.1f} ms)")
-        print("| contender | iteration (ms) | rollout | recompute | policy update | critic | FVPs | policy vs TRPO | "
-              "update vs TRPO | iteration vs TRPO | sim. share |")  # fmt: skip
+        print(
+            "| contender | iteration (ms) | rollout | recompute | policy update | critic | FVPs | policy vs TRPO | "
+            "update vs TRPO | iteration vs TRPO | sim. share |"
+        )
         print("|---|---|---|---|---|---|---|---|---|---|---|")
         for name in contenders:
             print(_table_row(name, summary[name]))
         if BATCHED in summary:
             b = summary[BATCHED]
-            print(f"\n{BATCHED}: training {1 / b['ratio_iteration_vs_trpo']:.2f}x sb3-contrib TRPO on DummyVecEnv, "
-                  f"collection {1 / b['ratio_rollout_vs_trpo']:.2f}x, physics "
-                  f"{b['physics_share_of_rollout']['median']:.0%} of the collection time")  # fmt: skip
+            print(
+                f"\n{BATCHED}: training {1 / b['ratio_iteration_vs_trpo']:.2f}x sb3-contrib TRPO on DummyVecEnv, "
+                f"collection {1 / b['ratio_rollout_vs_trpo']:.2f}x, physics "
+                f"{b['physics_share_of_rollout']['median']:.0%} of the collection time"
+            )
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(results, indent=1))
     print(f"\nraw results: {args.out}")

@@ -121,24 +121,36 @@ def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any
         trained += time.perf_counter() - start
         start = time.perf_counter()
         success, mean_return = evaluate_held_out(model, args.env, args.eval_episodes, statistics)
-        rows.append({"timesteps": model.num_timesteps, "train_seconds": round(trained, 2),
-                     "eval_seconds": round(time.perf_counter() - start, 2), "success": success,
-                     "mean_return": round(mean_return, 3)})  # fmt: skip
+        rows.append(
+            {
+                "timesteps": model.num_timesteps,
+                "train_seconds": round(trained, 2),
+                "eval_seconds": round(time.perf_counter() - start, 2),
+                "success": success,
+                "mean_return": round(mean_return, 3),
+            }
+        )
         print(f"{algo} seed {seed}: {model.num_timesteps:>8} steps, {trained:6.1f} s, success {success:.2f}", flush=True)
     with path.open("w", newline="") as file:
         writer = csv.DictWriter(file, FIELDS)
         writer.writeheader()
         writer.writerows(rows)
     trained_recipe = {**recipe(args.env, algo), **overrides}
-    settings = {"env": args.env, "algo": algo, "seed": seed, "budget": args.budget, "eval_every": args.eval_every,
-                "eval_episodes": args.eval_episodes, "sim_threads": args.sim_threads,
-                "workers": args.workers or trained_recipe.get("rollout_workers"),
-                "overrides": overrides,
-                "recipe": trained_recipe,
-                "env_steps_per_s": round(model.num_timesteps / trained),
-                "phase_medians": {key: round(float(np.median(values)), 4) for key, values in phases.items()},
-                "machine": {"cpu": cpu_name(), "python": platform.python_version(),
-                            "torch": th.__version__}}  # fmt: skip
+    settings = {
+        "env": args.env,
+        "algo": algo,
+        "seed": seed,
+        "budget": args.budget,
+        "eval_every": args.eval_every,
+        "eval_episodes": args.eval_episodes,
+        "sim_threads": args.sim_threads,
+        "workers": args.workers or trained_recipe.get("rollout_workers"),
+        "overrides": overrides,
+        "recipe": trained_recipe,
+        "env_steps_per_s": round(model.num_timesteps / trained),
+        "phase_medians": {key: round(float(np.median(values)), 4) for key, values in phases.items()},
+        "machine": {"cpu": cpu_name(), "python": platform.python_version(), "torch": th.__version__},
+    }
     (folder / f"seed{seed}.json").write_text(json.dumps(settings, indent=1, default=plain) + "\n")
     env = model.get_env()
     if env is not None:
@@ -193,8 +205,10 @@ def comparison_lines(runs: dict[str, dict[str, list[dict[str, float]]]], pairs: 
 
     from benchmarks.report import interval_estimates
 
-    lines = ["| X > Y | seeds | P(X > Y), success area over env steps | P(X > Y), success area over training seconds |",
-             "|---|---|---|---|"]  # fmt: skip
+    lines = [
+        "| X > Y | seeds | P(X > Y), success area over env steps | P(X > Y), success area over training seconds |",
+        "|---|---|---|---|",
+    ]
     for a, b in pairs:
         for name in (a, b):
             if name not in runs or not runs[name]:
@@ -241,8 +255,10 @@ def report(
         runs = {path.stem: read(path) for path in sorted(folder.glob("seed*.csv"), key=seed_number)}
         reached = {seed: first_at_target(rows) for seed, rows in runs.items()}
         times = [r[0] for r in reached.values() if r is not None]
-        cells = [f"{seed}: {r[0]:.0f} s / {r[1]:,} steps{'' if r[2] else ' (not held)'}" if r else f"{seed}: not reached"
-                 for seed, r in reached.items()]  # fmt: skip
+        cells = [
+            f"{seed}: {r[0]:.0f} s / {r[1]:,} steps{'' if r[2] else ' (not held)'}" if r else f"{seed}: not reached"
+            for seed, r in reached.items()
+        ]
         median = f"{np.median(times):.0f} s" if len(times) == len(runs) and times else "not every seed reached it"
         if len(times) == len(runs) and len(times) > 1:
             low, high = median_interval(times)
@@ -280,8 +296,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--workers", default=None, metavar="BACKEND:N", help="collect with N rollout workers (make_model)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="recipe overrides (YAML values)")
     parser.add_argument("--out", type=Path, default=OUT)
-    parser.add_argument("--compare", nargs=2, action="append", default=[], metavar=("X", "Y"),
-                        help="report: P(X > Y) between two result folders (repeatable)")  # fmt: skip
+    parser.add_argument(
+        "--compare",
+        nargs=2,
+        action="append",
+        default=[],
+        metavar=("X", "Y"),
+        help="report: P(X > Y) between two result folders (repeatable)",
+    )
     parser.add_argument("--only", nargs="+", default=[], metavar="NAME", help="report: these result folders only")
     parser.add_argument("--plot", default="time_to_grasp.png", help="report: the plot's file name under --out")
     args = parser.parse_args(argv)

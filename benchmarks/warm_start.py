@@ -50,9 +50,15 @@ def run(env_id: str, variant: str, seed: int, steps: int, cg_max_steps: int) -> 
     th.set_num_threads(1)
     env = VecNormalize(make_vec_env(env_id, n_envs=8, seed=seed))
     model = TRPOPlus(
-        "MlpPolicy", env, n_steps=256, batch_size=256, cg_max_steps=cg_max_steps, seed=seed,
-        policy_kwargs=dict(net_arch=[100, 100], activation_fn=nn.Tanh), **VARIANTS[variant],
-    )  # fmt: skip
+        "MlpPolicy",
+        env,
+        n_steps=256,
+        batch_size=256,
+        cg_max_steps=cg_max_steps,
+        seed=seed,
+        policy_kwargs=dict(net_arch=[100, 100], activation_fn=nn.Tanh),
+        **VARIANTS[variant],
+    )
     recorder = RecordTrainLogs()
     model.learn(steps, callback=recorder)
     env.training, env.norm_reward = False, False
@@ -60,10 +66,14 @@ def run(env_id: str, variant: str, seed: int, steps: int, cg_max_steps: int) -> 
     assert isinstance(mean_return, float)  # the mean (a list only with return_episode_rewards)
     rows = recorder.rows[1:]  # the first update has no previous step
     return {
-        "env": env_id, "variant": variant, "seed": seed, "steps": steps, "cg_max_steps": cg_max_steps,
+        "env": env_id,
+        "variant": variant,
+        "seed": seed,
+        "steps": steps,
+        "cg_max_steps": cg_max_steps,
         "eval_return": float(mean_return),
         **{f"mean_{k.split('/')[1]}": float(np.mean([r[k] for r in rows])) for k in KEYS},
-    }  # fmt: skip
+    }
 
 
 def main() -> None:
@@ -90,8 +100,10 @@ def main() -> None:
     for variant in VARIANTS:
         group = [r for r in rows if r["variant"] == variant]
         if group:
-            cells = [_stat(group, k) for k in ("eval_return", "mean_cg_residual", "mean_cg_warm_start_cosine",
-                                               "mean_is_line_search_success")]  # fmt: skip
+            cells = [
+                _stat(group, k)
+                for k in ("eval_return", "mean_cg_residual", "mean_cg_warm_start_cosine", "mean_is_line_search_success")
+            ]
             print(f"| {variant} | {len(group)} | " + " | ".join(cells) + " |")
 
 

@@ -108,9 +108,14 @@ def measure(env_id: str, variant: str, seed: int, steps: int, from_run: bool, ra
         update_module.conjugate_gradient = solve
         model.get_env().close()
     return {
-        "env": env_id, "variant": variant, "seed": seed, "from_run": from_run, "raw": raw, "steps": steps,
+        "env": env_id,
+        "variant": variant,
+        "seed": seed,
+        "from_run": from_run,
+        "raw": raw,
+        "steps": steps,
         "updates": rows,
-    }  # fmt: skip
+    }
 
 
 def summary(result: dict[str, Any]) -> str:

@@ -89,9 +89,16 @@ def measure(backend: str, env_id: str, workers: int, envs_per_worker: int, n_ste
     )
     env = VecNormalize(venv)
     model = TRPOPlus(
-        "MlpPolicy", env, n_steps=n_steps, batch_size=n_steps * n_envs // 4, cg_max_steps=10, n_critic_updates=10,
-        seed=0, policy_kwargs=dict(net_arch=[100, 100], activation_fn=nn.Tanh), device="cpu",
-    )  # fmt: skip
+        "MlpPolicy",
+        env,
+        n_steps=n_steps,
+        batch_size=n_steps * n_envs // 4,
+        cg_max_steps=10,
+        n_critic_updates=10,
+        seed=0,
+        policy_kwargs=dict(net_arch=[100, 100], activation_fn=nn.Tanh),
+        device="cpu",
+    )
     timer = _IterationTimer()
     try:
         model.learn(iterations * n_steps * n_envs, callback=timer)
@@ -101,11 +108,14 @@ def measure(backend: str, env_id: str, workers: int, envs_per_worker: int, n_ste
     samples = n_steps * n_envs
     median = {key: statistics.median(row[key] for row in rows) for key in rows[0]}
     measured: dict[str, Any] = {
-        "backend": backend, "workers": workers, "n_envs": n_envs, "samples": samples,
+        "backend": backend,
+        "workers": workers,
+        "n_envs": n_envs,
+        "samples": samples,
         "collect_steps_per_s": samples / median["collect_s"],
         "train_steps_per_s": samples / (median["collect_s"] + median["update_s"]),
         **{f"{key}_ms": 1e3 * value for key, value in median.items()},
-    }  # fmt: skip
+    }
     if "worker_s_ms" in measured:
         waited = measured["worker_s_ms"] + measured["transfer_s_ms"] + measured["broadcast_s_ms"]
         measured["merge_ms"] = measured["collect_s_ms"] - waited
@@ -128,11 +138,14 @@ def learner_costs(rows: list[dict[str, Any]]) -> dict[str, Any]:
     remote = [row for row in rows if row["backend"] in ("ray", "process")]
     best = max(remote, key=lambda row: (row["workers"], row["backend"] == "ray"))
     return {
-        "update_fixed_s": max(float(fixed), 0.0), "update_per_sample_s": float(per_sample),
+        "update_fixed_s": max(float(fixed), 0.0),
+        "update_per_sample_s": float(per_sample),
         "merge_per_sample_s": max(best["merge_ms"], 0.0) / 1e3 / best["samples"],
-        "transfer_per_worker_s": best["transfer_s_ms"] / 1e3 / best["workers"], "broadcast_s": best["broadcast_s_ms"] / 1e3,
-        "segment_step_s": best["worker_s_ms"] / 1e3 / (best["samples"] / best["n_envs"]), "from": best["backend"],
-    }  # fmt: skip
+        "transfer_per_worker_s": best["transfer_s_ms"] / 1e3 / best["workers"],
+        "broadcast_s": best["broadcast_s_ms"] / 1e3,
+        "segment_step_s": best["worker_s_ms"] / 1e3 / (best["samples"] / best["n_envs"]),
+        "from": best["backend"],
+    }
 
 
 def project(costs: dict[str, Any], workers: int, envs_per_worker: int, n_steps: int) -> dict[str, Any]:
@@ -142,9 +155,13 @@ def project(costs: dict[str, Any], workers: int, envs_per_worker: int, n_steps: 
     collection = costs["broadcast_s"] + costs["segment_step_s"] * n_steps + costs["transfer_per_worker_s"] * workers
     iteration = collection + learner
     return {
-        "workers": workers, "n_steps": n_steps, "samples": samples, "iteration_s": iteration,
-        "steps_per_s": samples / iteration, "learner_share": learner / iteration,
-    }  # fmt: skip
+        "workers": workers,
+        "n_steps": n_steps,
+        "samples": samples,
+        "iteration_s": iteration,
+        "steps_per_s": samples / iteration,
+        "learner_share": learner / iteration,
+    }
 
 
 def main() -> None:
@@ -161,9 +178,12 @@ def main() -> None:
     args = parser.parse_args()
     th.set_num_threads(1)
     machine = {
-        "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(), "python": platform.python_version(),
-        "torch": th.__version__, "numpy": np.__version__,
-    }  # fmt: skip
+        "cpu": platform.processor() or platform.machine(),
+        "cores": os.cpu_count(),
+        "python": platform.python_version(),
+        "torch": th.__version__,
+        "numpy": np.__version__,
+    }
     if "ray" in args.backends:
         import ray
 
@@ -207,9 +227,13 @@ def main() -> None:
                     f"{row['steps_per_s']:>9,.0f} env steps/s, learner {100 * row['learner_share']:.0f} % of the iteration"
                 )
     result = {
-        "machine": machine, "command": vars(args), "rows": rows, "costs": costs,
-        "projection_fixed_n_steps": fixed_steps, "projection_fixed_batch": fixed_batch,
-    }  # fmt: skip
+        "machine": machine,
+        "command": vars(args),
+        "rows": rows,
+        "costs": costs,
+        "projection_fixed_n_steps": fixed_steps,
+        "projection_fixed_batch": fixed_batch,
+    }
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=1))
     print(f"raw results: {args.out}")

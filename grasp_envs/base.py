@@ -45,14 +45,32 @@ INSTABILITY_WARNINGS = np.array(
 )
 # MjData fields the tasks read, each as an (n, ...) array
 SIM_FIELDS = (
-    "qpos", "qvel", "ctrl", "mocap_pos", "xpos", "xmat", "site_xpos", "geom_xpos", "geom_xmat", "actuator_force",
-    "qfrc_bias", "cdof", "subtree_com",
-)  # fmt: skip
+    "qpos",
+    "qvel",
+    "ctrl",
+    "mocap_pos",
+    "xpos",
+    "xmat",
+    "site_xpos",
+    "geom_xpos",
+    "geom_xmat",
+    "actuator_force",
+    "qfrc_bias",
+    "cdof",
+    "subtree_com",
+)
 
 # Gymnasium MujocoEnv's arguments that only concern rendering: every env takes them besides its task's options
 RENDER_ARGUMENTS = (
-    "render_mode", "width", "height", "camera_id", "camera_name", "default_camera_config", "max_geom", "visual_options",
-)  # fmt: skip
+    "render_mode",
+    "width",
+    "height",
+    "camera_id",
+    "camera_name",
+    "default_camera_config",
+    "max_geom",
+    "visual_options",
+)
 
 Array = NDArray[np.float64]
 Start = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]  # qpos, qvel, mocap_pos (or None)

@@ -178,10 +178,18 @@ class BatchVecEnv(VecEnv):
         info_keywords: Sequence[str] = (),
         **options: Any,
     ):
-        check_arguments(ARGUMENT_RULES, {
-            "env_id": env_id, "n_envs": n_envs, "n_threads": n_threads, "scripted_starts": scripted_starts,
-            "monitor": monitor, "monitor_file": monitor_file, "info_keywords": info_keywords,
-        })  # fmt: skip
+        check_arguments(
+            ARGUMENT_RULES,
+            {
+                "env_id": env_id,
+                "n_envs": n_envs,
+                "n_threads": n_threads,
+                "scripted_starts": scripted_starts,
+                "monitor": monitor,
+                "monitor_file": monitor_file,
+                "info_keywords": info_keywords,
+            },
+        )
         n_envs, n_threads = int(n_envs), int(n_threads)
         spec = gym.spec(env_id)
         env_class = load_env_creator(spec.entry_point) if isinstance(spec.entry_point, str) else spec.entry_point
@@ -339,10 +347,16 @@ class BatchVecEnv(VecEnv):
             if self._render_data is None:
                 self._render_data = mujoco.MjData(model)
             self._renderers[i] = MujocoRenderer(
-                model, self._render_data, self._render_kwargs.get("default_camera_config"), width, height,
-                self._render_kwargs.get("max_geom", 1000), self._render_kwargs.get("camera_id"),
-                self._render_kwargs.get("camera_name"), self._render_kwargs.get("visual_options", {}),
-            )  # fmt: skip
+                model,
+                self._render_data,
+                self._render_kwargs.get("default_camera_config"),
+                width,
+                height,
+                self._render_kwargs.get("max_geom", 1000),
+                self._render_kwargs.get("camera_id"),
+                self._render_kwargs.get("camera_name"),
+                self._render_kwargs.get("visual_options", {}),
+            )
         self.batch.get_data(i, self._render_data)  # with the derived fields of the last step, as MjData after mj_step
         return self._renderers[i].render("rgb_array")
 
@@ -426,19 +440,35 @@ def make_batch_env(
     Every argument is checked before the simulations are built: a value of the wrong type or out of range raises
     ``ValueError`` naming the argument and the value.
     """
-    check_arguments(ARGUMENT_RULES, {
-        "env_id": env_id, "n_envs": n_envs, "seed": seed, "n_threads": n_threads, "wrapper_class": wrapper_class,
-        "wrapper_kwargs": wrapper_kwargs, "monitor": monitor, "info_keywords": info_keywords, "monitor_file": monitor_file,
-    })  # fmt: skip
+    check_arguments(
+        ARGUMENT_RULES,
+        {
+            "env_id": env_id,
+            "n_envs": n_envs,
+            "seed": seed,
+            "n_threads": n_threads,
+            "wrapper_class": wrapper_class,
+            "wrapper_kwargs": wrapper_kwargs,
+            "monitor": monitor,
+            "info_keywords": info_keywords,
+            "monitor_file": monitor_file,
+        },
+    )
     scripted = None
     if wrapper_class is not None:
         scripted = dict(wrapper_kwargs or {})
     elif wrapper_kwargs:
         raise TypeError("wrapper_kwargs given without wrapper_class")
     env = BatchVecEnv(
-        env_id, n_envs, n_threads, scripted_starts=scripted, monitor=monitor, monitor_file=monitor_file,
-        info_keywords=info_keywords, **options,
-    )  # fmt: skip
+        env_id,
+        n_envs,
+        n_threads,
+        scripted_starts=scripted,
+        monitor=monitor,
+        monitor_file=monitor_file,
+        info_keywords=info_keywords,
+        **options,
+    )
     if seed is not None:
         env.seed(seed)
     return env

@@ -251,14 +251,16 @@ class Grasper3DTask(ArmTask):
             lifted = (height >= options.lift_height) & (n_cube > 3)
             self.lift_bonus_paid = lifted
             terms = {
-                "reward_dist": -norm(sim.site_xpos[:, self.palm_site] - cube) - norm(right - cube) - norm(left - cube)
+                "reward_dist": -norm(sim.site_xpos[:, self.palm_site] - cube)
+                - norm(right - cube)
+                - norm(left - cube)
                 + norm(left - right),
                 "reward_ctrl": ctrl,
                 "reward_contact": n_cube.astype(np.float64),
                 "reward_floor": -contacts["floor"].astype(np.float64),
                 "reward_claw_collision": np.where(n_cube <= 4, -contacts["claw_claw"].astype(np.float64), 0.0),
                 "reward_lift": np.where(lifted, 1000.0 + 1000.0 * height, 0.0),
-            }  # fmt: skip
+            }
             info.update(terms)
             return sum(terms.values()), info
         solved = grasped & (height >= options.lift_height)

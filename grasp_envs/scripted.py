@@ -52,9 +52,13 @@ APPROACH_SPEED, LIFT_SPEED = 0.35, 0.25  # m/s of the grip site
 
 
 def grasper3d_actions(
-    task: Grasper3DTask, sim: SimArrays, action_low: NDArray[Any], action_high: NDArray[Any], lift: bool = True,
+    task: Grasper3DTask,
+    sim: SimArrays,
+    action_low: NDArray[Any],
+    action_high: NDArray[Any],
+    lift: bool = True,
     hold_height: float | None = None,
-) -> NDArray[np.float64]:  # fmt: skip
+) -> NDArray[np.float64]:
     """The scripted grasp's actions ``(n, action_dim)`` for ``n`` simulations of a ``Grasper3DTask``: open, align
     above the cube with the forearm down, descend, close, lift (``grasper3d_policy``)."""
     model = sim.model

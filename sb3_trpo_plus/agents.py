@@ -444,11 +444,20 @@ def load_normalization(path: str | Path) -> NormalizationStats:
         obs_mean, obs_var, obs_count = _rms_arrays(state["obs_rms"]) if state.get("norm_obs") else (None, None, None)
         ret_mean, ret_var, ret_count = _rms_arrays(state["ret_rms"])
         return NormalizationStats(
-            obs_mean, obs_var, obs_count, ret_mean, ret_var, ret_count,
-            norm_obs=bool(state["norm_obs"]), norm_reward=bool(state["norm_reward"]),
-            clip_obs=float(state["clip_obs"]), clip_reward=float(state["clip_reward"]), gamma=float(state["gamma"]),
-            epsilon=float(state["epsilon"]), norm_obs_keys=state.get("norm_obs_keys"),
-        )  # fmt: skip
+            obs_mean,
+            obs_var,
+            obs_count,
+            ret_mean,
+            ret_var,
+            ret_count,
+            norm_obs=bool(state["norm_obs"]),
+            norm_reward=bool(state["norm_reward"]),
+            clip_obs=float(state["clip_obs"]),
+            clip_reward=float(state["clip_reward"]),
+            gamma=float(state["gamma"]),
+            epsilon=float(state["epsilon"]),
+            norm_obs_keys=state.get("norm_obs_keys"),
+        )
     except (KeyError, TypeError, ValueError, OverflowError) as error:
         raise RunFileError(f"{path}: VecNormalize statistics incomplete or malformed: {error!r}") from None
 
@@ -506,12 +515,17 @@ def make_eval_env(
         raise RunFileError(f"{config.stats_dir}: the run normalises observations but has no vecnormalize.pkl")
     try:
         return evaluation_env(
-            config.env_id, {**config.env_kwargs, **(env_kwargs or {})},
-            normalization if config.normalize_kwargs is not None else None, seed,
-            _wrapper_class(config.hyperparams, "env_wrapper", where), n_envs=n_envs, render_mode=render_mode,
+            config.env_id,
+            {**config.env_kwargs, **(env_kwargs or {})},
+            normalization if config.normalize_kwargs is not None else None,
+            seed,
+            _wrapper_class(config.hyperparams, "env_wrapper", where),
+            n_envs=n_envs,
+            render_mode=render_mode,
             vec_env_wrapper=_wrapper_class(config.hyperparams, "vec_env_wrapper", where),
-            frame_stack=config.hyperparams.get("frame_stack"), norm_reward=norm_reward,
-        )  # fmt: skip
+            frame_stack=config.hyperparams.get("frame_stack"),
+            norm_reward=norm_reward,
+        )
     except StatisticsMismatchError as error:
         raise RunFileError(f"{config.stats_dir}: {error}") from None
 

@@ -16,11 +16,32 @@ from stable_baselines3.common.logger import HParam
 from stable_baselines3.common.vec_env import VecNormalize
 
 HPARAM_NAMES = (
-    "learning_rate", "n_steps", "batch_size", "gamma", "gae_lambda", "target_kl", "cg_max_steps", "cg_damping",
-    "n_critic_updates", "replay_memory", "replay_is_clip", "cg_warm_start", "cg_warm_start_rescale",
-    "value_baseline", "normalize_advantage", "use_sde", "sub_sampling_factor", "seed", "n_envs", "sample_reuse",
-    "reuse_batches", "reuse_max_batches", "reuse_trace_clip", "reuse_kl_vary", "overlap_collection",
-)  # fmt: skip
+    "learning_rate",
+    "n_steps",
+    "batch_size",
+    "gamma",
+    "gae_lambda",
+    "target_kl",
+    "cg_max_steps",
+    "cg_damping",
+    "n_critic_updates",
+    "replay_memory",
+    "replay_is_clip",
+    "cg_warm_start",
+    "cg_warm_start_rescale",
+    "value_baseline",
+    "normalize_advantage",
+    "use_sde",
+    "sub_sampling_factor",
+    "seed",
+    "n_envs",
+    "sample_reuse",
+    "reuse_batches",
+    "reuse_max_batches",
+    "reuse_trace_clip",
+    "reuse_kl_vary",
+    "overlap_collection",
+)
 
 
 class RewardTermsCallback(BaseCallback):

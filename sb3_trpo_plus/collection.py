@@ -86,9 +86,13 @@ class SegmentCollection(_Algorithm):
         self._last_episode_timesteps = segment.episode_timesteps[-1].copy()
         rollout_buffer.fill(segment)
         callback.update_locals(
-            {"new_obs": segment.last_observation, "dones": segment.dones[-1], "rollout_buffer": rollout_buffer,
-             "values": th.as_tensor(segment.last_values)}
-        )  # fmt: skip
+            {
+                "new_obs": segment.last_observation,
+                "dones": segment.dones[-1],
+                "rollout_buffer": rollout_buffer,
+                "values": th.as_tensor(segment.last_values),
+            }
+        )
         callback.on_rollout_end()
         return True
 
@@ -104,8 +108,13 @@ class SegmentCollection(_Algorithm):
             episode_starts=np.asarray(self._last_episode_starts, dtype=bool),
             episode_timesteps=self._last_episode_timesteps,
         )
-        own = {"self": self, "env": env, "callback": callback, "rollout_buffer": rollout_buffer,
-               "n_rollout_steps": n_rollout_steps}  # fmt: skip
+        own = {
+            "self": self,
+            "env": env,
+            "callback": callback,
+            "rollout_buffer": rollout_buffer,
+            "n_rollout_steps": n_rollout_steps,
+        }
 
         def on_step(step: StepLocals) -> bool:  # what SB3 does between env.step and storing the step
             self.num_timesteps += env.num_envs
@@ -116,9 +125,14 @@ class SegmentCollection(_Algorithm):
             return True
 
         return collect_segment(
-            self.policy, env, n_rollout_steps, state, gamma=self.gamma, on_step=on_step,
+            self.policy,
+            env,
+            n_rollout_steps,
+            state,
+            gamma=self.gamma,
+            on_step=on_step,
             sde_sample_freq=self.sde_sample_freq if self.use_sde else None,
-        )  # fmt: skip
+        )
 
     def _segment_from_workers(
         self, pool: RolloutWorkers, vec_normalize: VecNormalize | None, callback: BaseCallback, n_rollout_steps: int

@@ -70,7 +70,14 @@ def batch_envs(
     from grasp_envs.wrappers import ScriptedStarts
 
     return make_batch_env(
-        env_id, n_envs, seed=seed, n_threads=n_threads, monitor=True, monitor_file=monitor_file,
-        info_keywords=tuple(info_keywords), wrapper_class=ScriptedStarts if scripted_starts is not None else None,
-        wrapper_kwargs=scripted_starts, **(env_kwargs or {}),
-    )  # fmt: skip
+        env_id,
+        n_envs,
+        seed=seed,
+        n_threads=n_threads,
+        monitor=True,
+        monitor_file=monitor_file,
+        info_keywords=tuple(info_keywords),
+        wrapper_class=ScriptedStarts if scripted_starts is not None else None,
+        wrapper_kwargs=scripted_starts,
+        **(env_kwargs or {}),
+    )

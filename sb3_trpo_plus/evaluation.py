@@ -112,10 +112,16 @@ def frozen_normalization(
         return normalization.wrap(env, training=False, norm_reward=norm_reward)
     if isinstance(normalization, VecNormalize):
         normalized = VecNormalize(
-            env, training=False, norm_obs=normalization.norm_obs, norm_reward=norm_reward, clip_obs=normalization.clip_obs,
-            clip_reward=normalization.clip_reward, gamma=normalization.gamma, epsilon=normalization.epsilon,
+            env,
+            training=False,
+            norm_obs=normalization.norm_obs,
+            norm_reward=norm_reward,
+            clip_obs=normalization.clip_obs,
+            clip_reward=normalization.clip_reward,
+            gamma=normalization.gamma,
+            epsilon=normalization.epsilon,
             norm_obs_keys=normalization.norm_obs_keys,
-        )  # fmt: skip
+        )
         if normalization.norm_obs:
             _share(normalized, "obs_rms", normalization.obs_rms)
         normalized.ret_rms = normalization.ret_rms

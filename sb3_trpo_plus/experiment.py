@@ -94,10 +94,14 @@ class TRPOPlusExperimentManager(ExperimentManager):
 
         def build(env_fns: Sequence[Callable[[], Any]], **_: Any) -> Any:
             return factory(
-                self.env_name.gym_id, n_envs=len(env_fns), seed=self.seed, env_kwargs=self.env_kwargs,
-                monitor_dir=None if no_log else self.save_path, wrapper_class=self.env_wrapper,
+                self.env_name.gym_id,
+                n_envs=len(env_fns),
+                seed=self.seed,
+                env_kwargs=self.env_kwargs,
+                monitor_dir=None if no_log else self.save_path,
+                wrapper_class=self.env_wrapper,
                 monitor_kwargs=self.monitor_kwargs,
-            )  # fmt: skip
+            )
 
         return build
 

@@ -83,9 +83,14 @@ class TruncatedTraceRatios:
     they are not made twice."""
 
     def __init__(
-        self, policy: ActorCriticPolicy, segment: Segment, actions: th.Tensor, behaviour: th.Tensor, clip: float,
+        self,
+        policy: ActorCriticPolicy,
+        segment: Segment,
+        actions: th.Tensor,
+        behaviour: th.Tensor,
+        clip: float,
         action_tensor: Callable,
-    ) -> None:  # fmt: skip
+    ) -> None:
         self.policy, self.segment, self.actions, self.behaviour = policy, segment, actions, behaviour
         self.clip, self.action_tensor = clip, action_tensor
         self.observations: th.Tensor | None = None
@@ -161,14 +166,22 @@ def generalized_batch(
     spent = float((all_weights * (offpolicy - 1.0).abs()).mean())
     k = sub_sampling
     batch = PolicyBatch(
-        observations=all_observations[::k], actions=all_actions[::k], sampling_log_prob=all_sampling[::k],
-        advantages=th.cat(advantages)[::k], n_current=len(range(0, n_current, k)), sample_weights=all_weights[::k],
-    )  # fmt: skip
+        observations=all_observations[::k],
+        actions=all_actions[::k],
+        sampling_log_prob=all_sampling[::k],
+        advantages=th.cat(advantages)[::k],
+        n_current=len(range(0, n_current, k)),
+        sample_weights=all_weights[::k],
+    )
     return ReusedBatch(
-        batch=batch, critic_observations=all_observations, critic_returns=th.cat(returns), critic_weights=all_weights,
-        n_batches=len(sample_weights), radius=reuse_radius(target_kl, settings.weights.trust_scale, spent, settings.kl_vary),
+        batch=batch,
+        critic_observations=all_observations,
+        critic_returns=th.cat(returns),
+        critic_weights=all_weights,
+        n_batches=len(sample_weights),
+        radius=reuse_radius(target_kl, settings.weights.trust_scale, spent, settings.kl_vary),
         offpolicy_tv=spent / 2.0,
-    )  # fmt: skip
+    )
 
 
 def fit_weighted_critic(

@@ -36,8 +36,12 @@ class NormalizationStats:
     def normalize_obs(self, obs: np.ndarray | dict[str, np.ndarray]) -> np.ndarray | dict[str, np.ndarray]:
         """``obs`` as the run's ``VecNormalize.normalize_obs`` gives it to the policy (float32; one observation of a
         plain ``gym.make`` env or a batch; the keys of ``norm_obs_keys`` of a dict). Unchanged without ``norm_obs``."""
-        return self._map_obs(obs, lambda x, mean, var: np.clip(
-            (x - mean) / np.sqrt(var + self.epsilon), -self.clip_obs, self.clip_obs).astype(np.float32))  # fmt: skip
+        return self._map_obs(
+            obs,
+            lambda x, mean, var: np.clip((x - mean) / np.sqrt(var + self.epsilon), -self.clip_obs, self.clip_obs).astype(
+                np.float32
+            ),
+        )
 
     def unnormalize_obs(self, obs: np.ndarray | dict[str, np.ndarray]) -> np.ndarray | dict[str, np.ndarray]:
         """The inverse of :meth:`normalize_obs` (where no clipping happened), as ``VecNormalize.unnormalize_obs``."""
@@ -65,8 +69,12 @@ class NormalizationStats:
             if not (isinstance(self.obs_mean, dict) and isinstance(self.obs_var, dict)):
                 raise TypeError("these statistics are of array observations; got a dict observation")
             keys = self.norm_obs_keys if self.norm_obs_keys is not None else list(self.obs_mean)
-            return {key: function(np.asarray(value), self.obs_mean[key], self.obs_var[key]) if key in keys else
-                    copy.deepcopy(value) for key, value in obs.items()}  # fmt: skip
+            return {
+                key: function(np.asarray(value), self.obs_mean[key], self.obs_var[key])
+                if key in keys
+                else copy.deepcopy(value)
+                for key, value in obs.items()
+            }
         if isinstance(self.obs_mean, dict) or isinstance(self.obs_var, dict) or self.obs_mean is None or self.obs_var is None:
             raise TypeError("these statistics are of dict observations; got an array observation")
         obs = np.asarray(obs)
@@ -89,19 +97,34 @@ class NormalizationStats:
             obs_mean, obs_var, obs_count = obs_rms.mean.copy(), obs_rms.var.copy(), float(obs_rms.count)
         ret = vec_normalize.ret_rms
         return cls(
-            obs_mean, obs_var, obs_count, np.array(ret.mean, dtype=np.float64), np.array(ret.var, dtype=np.float64),
-            float(ret.count), norm_obs=bool(vec_normalize.norm_obs), norm_reward=bool(vec_normalize.norm_reward),
-            clip_obs=float(vec_normalize.clip_obs), clip_reward=float(vec_normalize.clip_reward),
-            gamma=float(vec_normalize.gamma), epsilon=float(vec_normalize.epsilon),
+            obs_mean,
+            obs_var,
+            obs_count,
+            np.array(ret.mean, dtype=np.float64),
+            np.array(ret.var, dtype=np.float64),
+            float(ret.count),
+            norm_obs=bool(vec_normalize.norm_obs),
+            norm_reward=bool(vec_normalize.norm_reward),
+            clip_obs=float(vec_normalize.clip_obs),
+            clip_reward=float(vec_normalize.clip_reward),
+            gamma=float(vec_normalize.gamma),
+            epsilon=float(vec_normalize.epsilon),
             norm_obs_keys=list(vec_normalize.norm_obs_keys) if vec_normalize.norm_obs_keys is not None else None,
-        )  # fmt: skip
+        )
 
     def wrap(self, venv: VecEnv, training: bool = False, norm_reward: bool = False) -> VecNormalize:
         """``venv`` wrapped in a VecNormalize with these statistics (test mode: frozen, raw rewards, by default)."""
         vec_normalize = VecNormalize(
-            venv, training=training, norm_obs=self.norm_obs, norm_reward=norm_reward, clip_obs=self.clip_obs,
-            clip_reward=self.clip_reward, gamma=self.gamma, epsilon=self.epsilon, norm_obs_keys=self.norm_obs_keys,
-        )  # fmt: skip
+            venv,
+            training=training,
+            norm_obs=self.norm_obs,
+            norm_reward=norm_reward,
+            clip_obs=self.clip_obs,
+            clip_reward=self.clip_reward,
+            gamma=self.gamma,
+            epsilon=self.epsilon,
+            norm_obs_keys=self.norm_obs_keys,
+        )
         if self.norm_obs:
             if isinstance(vec_normalize.obs_rms, dict):
                 assert isinstance(self.obs_mean, dict) and isinstance(self.obs_var, dict) and isinstance(self.obs_count, dict)

@@ -29,8 +29,19 @@ if TYPE_CHECKING:
     from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
 # keys of a recipe that describe the environment or the run, not the algorithm's constructor
-_RUN_KEYS = ("n_timesteps", "n_envs", "policy", "normalize", "env_wrapper", "vec_env_wrapper",
-             "callback", "frame_stack", "monitor_kwargs", "env_kwargs", "rollout_workers")  # fmt: skip
+_RUN_KEYS = (
+    "n_timesteps",
+    "n_envs",
+    "policy",
+    "normalize",
+    "env_wrapper",
+    "vec_env_wrapper",
+    "callback",
+    "frame_stack",
+    "monitor_kwargs",
+    "env_kwargs",
+    "rollout_workers",
+)
 
 
 def recipe(env_id: str, algo: str = "trpo_plus") -> dict[str, Any]:
@@ -99,10 +110,14 @@ def make_model(
         env = _rollout_workers(env_id, algo, workers, params, seed, sim_threads, vec_env)
     elif vec_env == "batch" or (vec_env == "auto" and has_batch_engine(env_id)):
         env = batch_envs(
-            env_id, int(params.get("n_envs", 1)), seed=seed, n_threads=sim_threads, env_kwargs=params.get("env_kwargs"),
+            env_id,
+            int(params.get("n_envs", 1)),
+            seed=seed,
+            n_threads=sim_threads,
+            env_kwargs=params.get("env_kwargs"),
             scripted_starts=_scripted_starts(params.get("env_wrapper")),
             info_keywords=(params.get("monitor_kwargs") or {}).get("info_keywords", ()),
-        )  # fmt: skip
+        )
     else:
         env = make_vec_env(
             env_id,
@@ -143,10 +158,16 @@ def _rollout_workers(
     if vec_env != "auto":
         raise ValueError(f"workers collect with their own envs; vec_env={vec_env!r} does not apply")
     return rollouts.split_pool(
-        backend, env_id, int(params.get("n_envs", 1)), count, seed=seed, sim_threads=sim_threads,
-        env_kwargs=params.get("env_kwargs"), scripted_starts=_scripted_starts(params.get("env_wrapper")),
+        backend,
+        env_id,
+        int(params.get("n_envs", 1)),
+        count,
+        seed=seed,
+        sim_threads=sim_threads,
+        env_kwargs=params.get("env_kwargs"),
+        scripted_starts=_scripted_starts(params.get("env_wrapper")),
         info_keywords=(params.get("monitor_kwargs") or {}).get("info_keywords"),
-    )  # fmt: skip
+    )
 
 
 def _schedule(key: str, value: Any) -> Any:

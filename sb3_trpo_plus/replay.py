@@ -66,14 +66,24 @@ class StoredRollout:
         zeros = np.zeros((n_steps, n_envs), dtype=np.float32)
         ended: list[list[tuple[int, dict[str, Any]]]] = [[] for _ in range(n_steps)]
         return Segment(
-            observations=self.observations, raw_observations=raw, last_observation=self.last_observations,
-            actions=self.actions, rewards=self.rewards, buffer_rewards=self.rewards, raw_rewards=self.rewards,
-            episode_starts=self.episode_starts, dones=dones,
-            episode_timesteps=np.concatenate([self.episode_timesteps, self.last_timesteps[None]]), values=zeros,
-            log_probs=self.log_probs, last_values=np.zeros(n_envs, dtype=np.float32), ended=ended,
-            truncated_steps=self.truncated_steps, terminal_observations=self.terminal_observations,
+            observations=self.observations,
+            raw_observations=raw,
+            last_observation=self.last_observations,
+            actions=self.actions,
+            rewards=self.rewards,
+            buffer_rewards=self.rewards,
+            raw_rewards=self.rewards,
+            episode_starts=self.episode_starts,
+            dones=dones,
+            episode_timesteps=np.concatenate([self.episode_timesteps, self.last_timesteps[None]]),
+            values=zeros,
+            log_probs=self.log_probs,
+            last_values=np.zeros(n_envs, dtype=np.float32),
+            ended=ended,
+            truncated_steps=self.truncated_steps,
+            terminal_observations=self.terminal_observations,
             terminal_timesteps=self.terminal_timesteps,
-        )  # fmt: skip
+        )
 
 
 def compute_gae(

@@ -180,15 +180,26 @@ class Segment:
         terminal_observations = _concatenate(terminals, axis=0) if terminals else None
         restarted = [s.restarted if s.restarted is not None else np.zeros(s.n_envs, bool) for s in segments]
         return cls(
-            observations=cat("observations"), raw_observations=cat("raw_observations"),
-            last_observation=flat("last_observation"), actions=cat("actions"), rewards=cat("rewards"),
-            buffer_rewards=cat("buffer_rewards"), raw_rewards=cat("raw_rewards"), episode_starts=cat("episode_starts"),
-            dones=cat("dones"), episode_timesteps=cat("episode_timesteps"), values=cat("values"),
-            log_probs=cat("log_probs"), last_values=flat("last_values"), ended=ended,
-            truncated_steps=np.concatenate(truncated), terminal_observations=terminal_observations,
+            observations=cat("observations"),
+            raw_observations=cat("raw_observations"),
+            last_observation=flat("last_observation"),
+            actions=cat("actions"),
+            rewards=cat("rewards"),
+            buffer_rewards=cat("buffer_rewards"),
+            raw_rewards=cat("raw_rewards"),
+            episode_starts=cat("episode_starts"),
+            dones=cat("dones"),
+            episode_timesteps=cat("episode_timesteps"),
+            values=cat("values"),
+            log_probs=cat("log_probs"),
+            last_values=flat("last_values"),
+            ended=ended,
+            truncated_steps=np.concatenate(truncated),
+            terminal_observations=terminal_observations,
             terminal_timesteps=np.concatenate([segment.terminal_timesteps for segment in segments]),
-            seconds=max(s.seconds for s in segments), restarted=np.concatenate(restarted),
-        )  # fmt: skip
+            seconds=max(s.seconds for s in segments),
+            restarted=np.concatenate(restarted),
+        )
 
 
 def _concatenate(parts: Sequence[Observation], axis: int) -> Observation:
@@ -401,15 +412,25 @@ def collect_segment(
     raw_observations[n_steps] = state.raw_observation
     episode_timesteps[n_steps] = state.episode_timesteps
     return Segment(
-        observations=observations.result(), raw_observations=raw_observations.result(),
-        last_observation=_copy(state.observation), actions=actions_out.array(), rewards=rewards_out,
-        buffer_rewards=buffer_rewards, raw_rewards=raw_rewards, episode_starts=episode_starts, dones=dones_out,
-        episode_timesteps=episode_timesteps, values=values_out, log_probs=log_probs_out,
-        last_values=last_values.astype(np.float32), ended=ended,
+        observations=observations.result(),
+        raw_observations=raw_observations.result(),
+        last_observation=_copy(state.observation),
+        actions=actions_out.array(),
+        rewards=rewards_out,
+        buffer_rewards=buffer_rewards,
+        raw_rewards=raw_rewards,
+        episode_starts=episode_starts,
+        dones=dones_out,
+        episode_timesteps=episode_timesteps,
+        values=values_out,
+        log_probs=log_probs_out,
+        last_values=last_values.astype(np.float32),
+        ended=ended,
         truncated_steps=np.array(truncated_steps, dtype=np.int64).reshape(-1, 2),
         terminal_observations=_stack(terminal_observations, like=state.raw_observation) if terminal_observations else None,
-        terminal_timesteps=np.array(terminal_timesteps, dtype=np.int64), seconds=time.perf_counter() - start,
-    )  # fmt: skip
+        terminal_timesteps=np.array(terminal_timesteps, dtype=np.int64),
+        seconds=time.perf_counter() - start,
+    )
 
 
 # ---------------------------------------------------------------------------------------------------- the buffer

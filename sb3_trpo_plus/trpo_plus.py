@@ -197,17 +197,33 @@ class TRPOPlus(SegmentCollection, TRPO):
             if n_steps * n_envs <= 1:
                 raise ArgumentError(f"TRPOPlus needs `n_steps * n_envs` > 1 to normalise advantages, got {n_steps} * {n_envs}")
         super().__init__(
-            policy, env, learning_rate=float_or_schedule(learning_rate), n_steps=n_steps, batch_size=batch_size,
-            gamma=gamma, cg_max_steps=cg_max_steps, cg_damping=cg_damping,
-            line_search_shrinking_factor=line_search_shrinking_factor, line_search_max_iter=line_search_max_iter,
-            n_critic_updates=n_critic_updates, gae_lambda=gae_lambda, use_sde=use_sde,
-            sde_sample_freq=sde_sample_freq, rollout_buffer_class=rollout_buffer_class,
-            rollout_buffer_kwargs=rollout_buffer_kwargs, normalize_advantage=normalize_advantage,
+            policy,
+            env,
+            learning_rate=float_or_schedule(learning_rate),
+            n_steps=n_steps,
+            batch_size=batch_size,
+            gamma=gamma,
+            cg_max_steps=cg_max_steps,
+            cg_damping=cg_damping,
+            line_search_shrinking_factor=line_search_shrinking_factor,
+            line_search_max_iter=line_search_max_iter,
+            n_critic_updates=n_critic_updates,
+            gae_lambda=gae_lambda,
+            use_sde=use_sde,
+            sde_sample_freq=sde_sample_freq,
+            rollout_buffer_class=rollout_buffer_class,
+            rollout_buffer_kwargs=rollout_buffer_kwargs,
+            normalize_advantage=normalize_advantage,
             target_kl=float_or_schedule(target_kl),  # type: ignore[arg-type]  # a schedule too (sb3-contrib's TRPO only stores it)
-            sub_sampling_factor=sub_sampling_factor, stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose, seed=seed,
-            device=device, _init_setup_model=False,
-        )  # fmt: skip
+            sub_sampling_factor=sub_sampling_factor,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=False,
+        )
         self.fisher_sub_sampling = int(fisher_sub_sampling)
         self.replay_memory = int(replay_memory)
         self.sample_reuse = sample_reuse
@@ -346,9 +362,15 @@ class TRPOPlus(SegmentCollection, TRPO):
         else:
             current = next(self.rollout_buffer.get(batch_size=None))
         reused = generalized_batch(
-            self.policy, current, stored, self._reevaluate, settings, self.current_target_kl, self.action_tensor,
+            self.policy,
+            current,
+            stored,
+            self._reevaluate,
+            settings,
+            self.current_target_kl,
+            self.action_tensor,
             self.sub_sampling_factor,
-        )  # fmt: skip
+        )
         prepared = time.perf_counter()
         policy_step = self.update_policy(reused.batch, reused.radius)
         stepped = time.perf_counter()
@@ -458,20 +480,31 @@ class TRPOPlus(SegmentCollection, TRPO):
             batch, distribution.log_prob(actions).detach(), self.normalize_advantage, self.replay_is_clip
         )
         return natural_gradient_step(
-            self.policy, self._actor_params, batch, actions, distribution, surrogate, anchor,
-            step_kl=radius, max_kl=radius, settings=self.natural_gradient_settings,
+            self.policy,
+            self._actor_params,
+            batch,
+            actions,
+            distribution,
+            surrogate,
+            anchor,
+            step_kl=radius,
+            max_kl=radius,
+            settings=self.natural_gradient_settings,
             warm_start=warm_start_from(self.previous_step) if self.cg_warm_start else no_warm_start,
-        )  # fmt: skip
+        )
 
     @property
     def natural_gradient_settings(self) -> NaturalGradientSettings:
         """This model's CG and line-search hyperparameters, as :func:`~sb3_trpo_plus.update.natural_gradient_step`
         takes them."""
         return NaturalGradientSettings(
-            cg_max_steps=self.cg_max_steps, cg_damping=self.cg_damping, cg_warm_start_rescale=self.cg_warm_start_rescale,
-            fisher_sub_sampling=self.fisher_sub_sampling, line_search_shrinking_factor=self.line_search_shrinking_factor,
+            cg_max_steps=self.cg_max_steps,
+            cg_damping=self.cg_damping,
+            cg_warm_start_rescale=self.cg_warm_start_rescale,
+            fisher_sub_sampling=self.fisher_sub_sampling,
+            line_search_shrinking_factor=self.line_search_shrinking_factor,
             line_search_max_iter=self.line_search_max_iter,
-        )  # fmt: skip
+        )
 
     def _update_value_baseline(self, segment: Segment, replayed: Sequence[RolloutEvaluation]) -> ValueFit:
         """Fit the critic (Adam epochs) or refit the linear baseline; ``replayed`` only with ``replay_critic``."""

@@ -240,9 +240,14 @@ def natural_gradient_step(
         return float(new_objective), float(kl.mean())
 
     result = backtracking_line_search(
-        actor_params, full_step, evaluate, float(objective.detach()), max_kl,
-        settings.line_search_shrinking_factor, settings.line_search_max_iter,
-    )  # fmt: skip
+        actor_params,
+        full_step,
+        evaluate,
+        float(objective.detach()),
+        max_kl,
+        settings.line_search_shrinking_factor,
+        settings.line_search_max_iter,
+    )
     return PolicyStep(
         line_search=result,
         applied_step=(result.coefficient * full_step).cpu().numpy() if result.accepted else None,

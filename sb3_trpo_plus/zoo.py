@@ -52,12 +52,27 @@ RUN_KEYS: dict[str, tuple[type, ...]] = {
     "rollout_workers": (str, type(None)),  # "BACKEND:N": collect with N rollout workers (parse_workers)
 }
 # packages whose wrapper classes a YAML file may name (rl-zoo3 imports and calls what env_wrapper names)
-WRAPPER_PACKAGES = ("grasp_envs.", "gymnasium.wrappers.", "stable_baselines3.", "sb3_contrib.", "rl_zoo3.wrappers.",
-                    "sb3_trpo_plus.")  # fmt: skip
+WRAPPER_PACKAGES = (
+    "grasp_envs.",
+    "gymnasium.wrappers.",
+    "stable_baselines3.",
+    "sb3_contrib.",
+    "rl_zoo3.wrappers.",
+    "sb3_trpo_plus.",
+)
 SCHEDULE_KEYS = {"learning_rate", "clip_range", "clip_range_vf"}  # may be rl-zoo schedules such as "lin_3e-4"
 SCHEDULE_PATTERN = re.compile(r"^lin_[0-9.eE+-]+$")
-POLICY_KWARGS_KEYS = {"net_arch", "activation_fn", "log_std_init", "ortho_init", "squash_output", "full_std",
-                      "use_expln", "share_features_extractor", "optimizer_kwargs"}  # fmt: skip
+POLICY_KWARGS_KEYS = {
+    "net_arch",
+    "activation_fn",
+    "log_std_init",
+    "ortho_init",
+    "squash_output",
+    "full_std",
+    "use_expln",
+    "share_features_extractor",
+    "optimizer_kwargs",
+}
 
 
 class HyperparameterError(ArgumentError):
@@ -363,11 +378,15 @@ def batch_training_env(
     from sb3_trpo_plus.engines import batch_envs, scripted_starts_options
 
     return batch_envs(
-        env_id, n_envs, seed=seed, n_threads=n_threads, env_kwargs=env_kwargs,
+        env_id,
+        n_envs,
+        seed=seed,
+        n_threads=n_threads,
+        env_kwargs=env_kwargs,
         scripted_starts=scripted_starts_options(wrapper_class, "--vec-env batch"),
         info_keywords=(monitor_kwargs or {}).get("info_keywords", ()),
         monitor_file=None if monitor_dir is None else os.path.join(monitor_dir, "batch"),
-    )  # fmt: skip
+    )
 
 
 WORKER_BACKENDS = ("inprocess", "process", "ray")
@@ -406,8 +425,14 @@ def workers_training_env(
     from sb3_trpo_plus.engines import scripted_starts_options
 
     return rollouts.split_pool(
-        backend, env_id, n_envs, num_workers, seed=seed, sim_threads=n_threads, env_kwargs=env_kwargs,
+        backend,
+        env_id,
+        n_envs,
+        num_workers,
+        seed=seed,
+        sim_threads=n_threads,
+        env_kwargs=env_kwargs,
         scripted_starts=scripted_starts_options(wrapper_class, f"--workers {backend}"),
         info_keywords=(monitor_kwargs or {}).get("info_keywords", ()),
         monitor_file=None if monitor_dir is None else os.path.join(monitor_dir, "workers"),
-    )  # fmt: skip
+    )

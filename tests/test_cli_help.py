@@ -230,3 +230,29 @@ def test_a_recipe_that_cannot_work_is_named_with_its_file_and_entry(tmp_path: Pa
 
 def test_every_shipped_recipe_passes_the_value_checks() -> None:
     config_module("trpo_plus")
+
+
+@pytest.mark.parametrize(
+    ("backend", "rest", "expected"),
+    [
+        ("process", [], 1),
+        ("ray", [], 1),
+        ("inprocess", [], 2),
+        ("process", ["--num-threads", "2"], 2),
+        ("process", ["--num-threads=2"], 2),
+    ],
+)
+def test_worker_processes_leave_the_learner_one_torch_thread(backend: str, rest: list[str], expected: int) -> None:
+    """Rollout worker processes share the cores with the learner: one PyTorch thread for it unless --num-threads says
+    otherwise (benchmarks.torch_threads); an in-process layout keeps PyTorch's own."""
+    import torch as th
+
+    from sb3_trpo_plus.cli import _torch_threads_given, _workers_factory
+
+    before = th.get_num_threads()
+    th.set_num_threads(2)
+    try:
+        _workers_factory(backend, 1, 1, "--workers", _torch_threads_given(rest))
+        assert th.get_num_threads() == expected
+    finally:
+        th.set_num_threads(before)

@@ -22,8 +22,11 @@ from benchmarks.study import VARIANTS, StudyError, Variant  # noqa: E402
 SNAPSHOT = ROOT / "benchmarks" / "results" / "convergence" / "variants.json"
 # ScriptedStarts' settings -> the names the snapshot gives them: the Grasper3D constructor options of the settings the
 # committed runs were trained with
-SCRIPTED_START_KWARGS = {"probability": "scripted_start_prob", "steps": "scripted_start_steps",
-                         "hold_height": "scripted_start_hold_height"}  # fmt: skip
+SCRIPTED_START_KWARGS = {
+    "probability": "scripted_start_prob",
+    "steps": "scripted_start_steps",
+    "hold_height": "scripted_start_hold_height",
+}
 
 
 def _as_snapshot(variant: Variant) -> dict:
@@ -605,8 +608,23 @@ def test_kept_checkpoints_are_the_study_as_it_stood_after_each_chunk(
 
     monkeypatch.setitem(study.BUDGETS, "Reacher2D-v1", 4 * 2048)
     out, kept = tmp_path / "runs", tmp_path / "kept"
-    convergence.main(["job", "--env", "Reacher2D-v1", "--variant", "plain", "--seed", "0", "--steps", "4096",
-                      "--out", str(out), "--keep-checkpoints", str(kept)])  # fmt: skip
+    convergence.main(
+        [
+            "job",
+            "--env",
+            "Reacher2D-v1",
+            "--variant",
+            "plain",
+            "--seed",
+            "0",
+            "--steps",
+            "4096",
+            "--out",
+            str(out),
+            "--keep-checkpoints",
+            str(kept),
+        ]
+    )
     job = runs.job_folder(out, "Reacher2D-v1", "plain", 0)
     rows, lines = runs.read_progress(job), (job / "progress.csv").read_text().splitlines()
     assert sorted(int(p.name) for p in kept.iterdir()) == [2048, 4096]
@@ -622,9 +640,25 @@ def test_kept_checkpoints_are_the_study_as_it_stood_after_each_chunk(
         assert (round(eval_return, 4), eval_success) == (row["eval_return"], row["eval_success"])
     assert not list(kept.rglob("*.tmp"))
     # evaluated again the study's way, on its own episodes: the rows' evaluations, once, whatever the reruns
-    again = ["reevaluate", "--kept", str(kept), "--out", str(out), "--envs", "Reacher2D-v1", "--variants", "plain",
-             "--seeds", "0", "--episodes", str(protocol.EVAL_EPISODES), "--reset-seed", str(protocol.EVAL_SEED),
-             "--jobs", "1"]  # fmt: skip
+    again = [
+        "reevaluate",
+        "--kept",
+        str(kept),
+        "--out",
+        str(out),
+        "--envs",
+        "Reacher2D-v1",
+        "--variants",
+        "plain",
+        "--seeds",
+        "0",
+        "--episodes",
+        str(protocol.EVAL_EPISODES),
+        "--reset-seed",
+        str(protocol.EVAL_SEED),
+        "--jobs",
+        "1",
+    ]
     convergence.main(again)
     convergence.main([*again[:-1], "2"])
     assert "0 checkpoints to evaluate" in capsys.readouterr().out
@@ -634,8 +668,10 @@ def test_kept_checkpoints_are_the_study_as_it_stood_after_each_chunk(
     ]
     convergence.main([*again, "--after", "2048", "--episodes", "3", "--reset-seed", "7", "--jobs", "2"])  # the 4096 one
     assert [(r["timesteps"], r["episodes"]) for r in runs.read_reevaluation(out, "Reacher2D-v1", "plain", 0)] == [
-        (2048, 20), (4096, 3), (4096, 20)
-    ]  # fmt: skip
+        (2048, 20),
+        (4096, 3),
+        (4096, 20),
+    ]
     convergence.main([*again, "--timesteps", "2048", "--episodes", "2"])
     assert [r["timesteps"] for r in runs.read_reevaluation(out, "Reacher2D-v1", "plain", 0) if r["episodes"] == 2] == [2048]
     with pytest.raises(FileNotFoundError, match=r"seed 0 at \[6144\]"):
@@ -660,19 +696,51 @@ def test_confirm_runs_the_confirmation_protocol_on_the_checkpoints_it_leaves_und
     monkeypatch.setattr(protocol, "CONFIRMATION_SEEDS", (7, 8))
     monkeypatch.setitem(study.TARGETS, "Reacher2D-v1", 0.5)
     out, kept = tmp_path / "runs", tmp_path / "kept"
-    convergence.main(["job", "--env", "Reacher2D-v1", "--variant", "plain", "--seed", "0", "--steps", "4096",
-                      "--out", str(out), "--keep-checkpoints", str(kept)])  # fmt: skip
+    convergence.main(
+        [
+            "job",
+            "--env",
+            "Reacher2D-v1",
+            "--variant",
+            "plain",
+            "--seed",
+            "0",
+            "--steps",
+            "4096",
+            "--out",
+            str(out),
+            "--keep-checkpoints",
+            str(kept),
+        ]
+    )
     at_target = {"timesteps": 2048, "episodes": 2, "reset_seed": protocol.REEVALUATION_SEED, "eval_success": 0.5}
     runs.write_reevaluation(out, "Reacher2D-v1", "plain", 0, {**at_target, "eval_return": 0.0})
-    command = ["reevaluate", "--kept", str(kept), "--out", str(out), "--envs", "Reacher2D-v1", "--variants", "plain",
-               "--seeds", "0", "--jobs", "1", "--confirm"]  # fmt: skip
+    command = [
+        "reevaluate",
+        "--kept",
+        str(kept),
+        "--out",
+        str(out),
+        "--envs",
+        "Reacher2D-v1",
+        "--variants",
+        "plain",
+        "--seeds",
+        "0",
+        "--jobs",
+        "1",
+        "--confirm",
+    ]
     convergence.main(command)
     rows = runs.read_reevaluation(out, "Reacher2D-v1", "plain", 0)
     first = [r for r in rows if r["timesteps"] == 4096 and r["episodes"] == 2]
     assert len(first) == 1 and first[0]["eval_success"] < 0.5  # a 4096-step Reacher misses the target: confirmed
     assert [(r["timesteps"], r["episodes"], r["reset_seed"]) for r in rows] == [
-        (2048, 2, 20_000), (4096, 2, 20_000), (4096, 3, 7), (4096, 3, 8)
-    ]  # fmt: skip
+        (2048, 2, 20_000),
+        (4096, 2, 20_000),
+        (4096, 3, 7),
+        (4096, 3, 8),
+    ]
     successes = sum(round(r["eval_success"] * r["episodes"]) for r in rows if r["timesteps"] == 4096)
     assert protocol.pooled_success(protocol.at(rows, 4096)) == successes / 8
     verdict = "pass" if successes >= 4 else "FAIL"
@@ -873,8 +941,10 @@ def test_a_task_without_a_success_flag_is_tabled_by_its_return() -> None:
     target = study.RETURN_TARGETS["Hopper-v5"]
 
     def rows(returns: list[float]) -> list[dict[str, float]]:
-        return [{"timesteps": 40_000.0 * (i + 1), "train_seconds": 10.0 * (i + 1), "eval_return": r, "eval_success": 0.0}
-                for i, r in enumerate(returns)]  # fmt: skip
+        return [
+            {"timesteps": 40_000.0 * (i + 1), "train_seconds": 10.0 * (i + 1), "eval_return": r, "eval_success": 0.0}
+            for i, r in enumerate(returns)
+        ]
 
     runs = {"trpo": {0: rows([100.0, target + 1, 900.0]), 1: rows([100.0, 200.0, 300.0])}, "ppo": {}}
     lines = report.tables("Hopper-v5", runs)
@@ -900,8 +970,9 @@ def test_a_budget_comparison_cuts_both_sides_at_its_budget_by_hand(tmp_path: Pat
     2M not counted), the table's medians over the seeds that reached 90 % and the ratio's over every seed, a seed
     that never reached it counting as never (1.5M against median(never, 2M, 1M) = 2M: 0.75 times), and P(X > Y) on
     the success area over the first two seeds of each (the baseline's third left out)."""
-    comparison = study.BudgetComparison("recipe_generalized_reuse", "Grasper3D-v7",
-                                        "warm_scripted25_late_ready_cg25_g098", "Grasper3D-v6", 2_000_000)  # fmt: skip
+    comparison = study.BudgetComparison(
+        "recipe_generalized_reuse", "Grasper3D-v7", "warm_scripted25_late_ready_cg25_g098", "Grasper3D-v6", 2_000_000
+    )
     reuse, recipe = comparison.variant, comparison.baseline
     _write_run(tmp_path, "Grasper3D-v7", reuse, 0, [(1_000_000, 50, 0.9), (2_000_000, 100, 1.0)])  # area 0.95
     _write_run(tmp_path, "Grasper3D-v7", reuse, 1, [(1_000_000, 50, 0.5), (2_000_000, 100, 0.9)])  # 0.7
@@ -949,22 +1020,60 @@ def test_the_budget_comparisons_compare_one_task() -> None:
     ("entry", "message"),
     [
         ({"variant": {"env": "Grasper3D-v7", "name": "plain"}, "budget": 10}, "a budget comparison is"),
-        ({"variant": {"env": "Grasper3D-v7"}, "baseline": {"env": "Grasper3D-v6", "name": "plain"}, "budget": 10},
-         "a budget comparison is"),
-        ({"variant": {"env": "Grasper3D-v7", "name": "nope"}, "baseline": {"env": "Grasper3D-v6", "name": "plain"},
-          "budget": 10}, "names no variant 'nope'"),
-        ({"variant": {"env": "Hopper-v5", "name": "plain"}, "baseline": {"env": "Grasper3D-v6", "name": "plain"},
-          "budget": 10}, "'Hopper-v5' is no study env with a success target"),
-        ({"variant": {"env": "Reacher2D-v0", "name": "plain"}, "baseline": {"env": "Reacher2D-v1", "name": "plain"},
-          "budget": 400_000}, "budget must be an int within Reacher2D-v0's budget"),
-        ({"variant": {"env": "Reacher2D-v0", "name": "plain"}, "baseline": {"env": "Reacher2D-v1", "name": "plain"},
-          "budget": 1e5}, "budget must be an int"),
-        ({"variant": {"env": "Reacher2D-v0", "name": "plain"}, "baseline": {"env": "Reacher2D-v1", "name": "plain"},
-          "budget": True}, "budget must be an int"),
-        ({"variant": {"env": "Reacher2D-v0", "name": "plain"}, "baseline": {"env": "WallReacher3D-v0", "name": "plain"},
-          "budget": 100}, "the two envs' success targets differ"),
+        (
+            {"variant": {"env": "Grasper3D-v7"}, "baseline": {"env": "Grasper3D-v6", "name": "plain"}, "budget": 10},
+            "a budget comparison is",
+        ),
+        (
+            {
+                "variant": {"env": "Grasper3D-v7", "name": "nope"},
+                "baseline": {"env": "Grasper3D-v6", "name": "plain"},
+                "budget": 10,
+            },
+            "names no variant 'nope'",
+        ),
+        (
+            {
+                "variant": {"env": "Hopper-v5", "name": "plain"},
+                "baseline": {"env": "Grasper3D-v6", "name": "plain"},
+                "budget": 10,
+            },
+            "'Hopper-v5' is no study env with a success target",
+        ),
+        (
+            {
+                "variant": {"env": "Reacher2D-v0", "name": "plain"},
+                "baseline": {"env": "Reacher2D-v1", "name": "plain"},
+                "budget": 400_000,
+            },
+            "budget must be an int within Reacher2D-v0's budget",
+        ),
+        (
+            {
+                "variant": {"env": "Reacher2D-v0", "name": "plain"},
+                "baseline": {"env": "Reacher2D-v1", "name": "plain"},
+                "budget": 1e5,
+            },
+            "budget must be an int",
+        ),
+        (
+            {
+                "variant": {"env": "Reacher2D-v0", "name": "plain"},
+                "baseline": {"env": "Reacher2D-v1", "name": "plain"},
+                "budget": True,
+            },
+            "budget must be an int",
+        ),
+        (
+            {
+                "variant": {"env": "Reacher2D-v0", "name": "plain"},
+                "baseline": {"env": "WallReacher3D-v0", "name": "plain"},
+                "budget": 100,
+            },
+            "the two envs' success targets differ",
+        ),
     ],
-)  # fmt: skip
+)
 def test_a_malformed_budget_comparison_is_refused_naming_the_problem(tmp_path: Path, entry: dict, message: str) -> None:
     import yaml
 

@@ -111,8 +111,11 @@ def test_the_runs_clip_obs_and_epsilon_apply(tmp_path: Path, source: str) -> Non
         normalization = VecNormalize.load(str(path), make_vec_env(ENV_ID, n_envs=1))
     env = evaluation_env(ENV_ID, normalization=normalization)
     assert isinstance(env, VecNormalize) and (env.clip_obs, env.epsilon, env.training, env.norm_reward) == (
-        0.5, 0.25, False, False
-    )  # fmt: skip
+        0.5,
+        0.25,
+        False,
+        False,
+    )
     policy = Recorder()
     evaluate_agent(policy, env, n_episodes=1, seed=3)
     observations, _, _ = _episode(3)

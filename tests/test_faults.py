@@ -200,9 +200,13 @@ def test_train_command_saves_on_sigint_and_resumes(tmp_path: Path) -> None:
     command += ["-f", str(logs), "--seed", "0", "--eval-freq", "-1", "--num-threads", "1", "--device", "cpu"]
     run = logs / "trpo_plus" / "Reacher2D-v0_1"
     child = subprocess.Popen(
-        command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path,
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=tmp_path,
         preexec_fn=sigint.handled_in_child,
-    )  # fmt: skip
+    )
     try:
 
         def episodes() -> int:  # the batched engine's monitor file (the default VecEnv of grasp_envs' ids)

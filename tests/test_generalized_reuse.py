@@ -88,9 +88,14 @@ def test_an_evaluation_that_skips_the_traces_is_named() -> None:
     assert model.reuse is not None
     with pytest.raises(RuntimeError, match="must compute the segment's trace ratios"):
         generalized_batch(
-            model.policy, None, list(model.rollout_memory), lambda segment, traces: model._reevaluate(segment),
-            ReuseSettings(model.reuse), 0.01, model.action_tensor,
-        )  # fmt: skip
+            model.policy,
+            None,
+            list(model.rollout_memory),
+            lambda segment, traces: model._reevaluate(segment),
+            ReuseSettings(model.reuse),
+            0.01,
+            model.action_tensor,
+        )
 
 
 def test_save_load_keeps_the_memory_bit_exact(tmp_path: Path) -> None:

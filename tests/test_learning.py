@@ -24,9 +24,17 @@ def test_variant_learns_pendulum(variant: str) -> None:
     seed = 1
     env = make_vec_env("Pendulum-v1", n_envs=2, seed=seed)
     model = TRPOPlus(
-        "MlpPolicy", env, n_steps=1024, gamma=0.9, n_critic_updates=20, learning_rate=1e-3,
-        use_sde=True, sde_sample_freq=4, seed=seed, **VARIANTS[variant],
-    )  # fmt: skip
+        "MlpPolicy",
+        env,
+        n_steps=1024,
+        gamma=0.9,
+        n_critic_updates=20,
+        learning_rate=1e-3,
+        use_sde=True,
+        sde_sample_freq=4,
+        seed=seed,
+        **VARIANTS[variant],
+    )
     model.learn(50_000)
     mean_reward, _ = evaluate_policy(model, make_vec_env("Pendulum-v1", n_envs=1, seed=100 + seed), n_eval_episodes=10)
     assert mean_reward > -600, f"{variant}: mean reward {mean_reward:.0f}"
@@ -36,9 +44,16 @@ def test_variant_learns_pendulum(variant: str) -> None:
 def test_linear_baseline_learns_pendulum() -> None:
     env = make_vec_env("Pendulum-v1", n_envs=2, seed=1)
     model = TRPOPlus(
-        "MlpPolicy", env, n_steps=1024, gamma=0.9, gae_lambda=1.0, use_sde=True, sde_sample_freq=4, seed=1,
+        "MlpPolicy",
+        env,
+        n_steps=1024,
+        gamma=0.9,
+        gae_lambda=1.0,
+        use_sde=True,
+        sde_sample_freq=4,
+        seed=1,
         value_baseline="linear",
-    )  # fmt: skip
+    )
     model.learn(50_000)
     mean_reward, _ = evaluate_policy(model, make_vec_env("Pendulum-v1", n_envs=1, seed=101), n_eval_episodes=10)
     # thesis setting (Monte-Carlo returns, lambda = 1): measured -716 (critic variants: -231 to -384)

@@ -135,8 +135,14 @@ def test_a_fresh_batch_of_the_current_policy_evaluated_as_a_stored_one_is_the_bu
 
     def rows(reused: Any) -> np.ndarray:  # one row per sample, sorted (SB3's buffer hands its samples out shuffled)
         batch = reused.batch
-        columns = [batch.observations, batch.actions, batch.sampling_log_prob[:, None], batch.advantages[:, None],
-                   batch.sample_weights[:, None], reused.critic_returns[:, None]]  # fmt: skip
+        columns = [
+            batch.observations,
+            batch.actions,
+            batch.sampling_log_prob[:, None],
+            batch.advantages[:, None],
+            batch.sample_weights[:, None],
+            reused.critic_returns[:, None],
+        ]
         table = th.cat([c.reshape(len(c), -1) for c in columns], dim=1).numpy()
         return table[np.lexsort(table[:, ::-1].T)]
 

@@ -42,10 +42,18 @@ def token_cluster() -> Iterator[str]:
     port = _free_port()
     temp_dir = tempfile.mkdtemp(prefix="rh")  # short: Ray's socket paths live under it
     command = [
-        RAY, "start", "--head", "--block", f"--port={port}", "--num-cpus=2", "--include-dashboard=false",
-        f"--ray-client-server-port={_free_port()}", f"--dashboard-port={_free_port()}", f"--temp-dir={temp_dir}",
+        RAY,
+        "start",
+        "--head",
+        "--block",
+        f"--port={port}",
+        "--num-cpus=2",
+        "--include-dashboard=false",
+        f"--ray-client-server-port={_free_port()}",
+        f"--dashboard-port={_free_port()}",
+        f"--temp-dir={temp_dir}",
         "--disable-usage-stats",
-    ]  # fmt: skip
+    ]
     log = open(Path(temp_dir) / "head.log", "w+")  # noqa: SIM115 - read while the head runs
     head = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     try:
@@ -102,10 +110,29 @@ def test_the_head_and_its_gcs_listen_on_loopback_only(token_cluster: str) -> Non
 def test_train_with_ray_workers_on_a_token_cluster(token_cluster: str, tmp_path: Path) -> None:
     """The documented multi-machine command, driven with the cluster's token: two iterations, then saved."""
     command = [
-        sys.executable, "-m", "sb3_trpo_plus", "train", "--env", "Reacher2D-v1", "-n", "256", "--seed", "1",
-        "-f", str(tmp_path), "--eval-freq", "-1", "--workers", "ray:2",
-        "-params", "n_envs:2", "n_steps:64", "batch_size:64", "--num-threads", "1",
-    ]  # fmt: skip
+        sys.executable,
+        "-m",
+        "sb3_trpo_plus",
+        "train",
+        "--env",
+        "Reacher2D-v1",
+        "-n",
+        "256",
+        "--seed",
+        "1",
+        "-f",
+        str(tmp_path),
+        "--eval-freq",
+        "-1",
+        "--workers",
+        "ray:2",
+        "-params",
+        "n_envs:2",
+        "n_steps:64",
+        "batch_size:64",
+        "--num-threads",
+        "1",
+    ]
     result = subprocess.run(command, env=_driver_env(token_cluster), capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-3000:]
     from sb3_trpo_plus import TRPOPlus
@@ -125,8 +152,18 @@ REFUSED = {
 def test_the_train_command_without_the_clusters_token_stops_at_once_with_one_line(
     token_cluster: str, tmp_path: Path, case: str
 ) -> None:
-    command = [sys.executable, "-m", "sb3_trpo_plus", "train", "--env", "Reacher2D-v1", "-f", str(tmp_path),
-               "--workers", "ray:2"]  # fmt: skip
+    command = [
+        sys.executable,
+        "-m",
+        "sb3_trpo_plus",
+        "train",
+        "--env",
+        "Reacher2D-v1",
+        "-f",
+        str(tmp_path),
+        "--workers",
+        "ray:2",
+    ]
     result = subprocess.run(command, env=_driver_env(token_cluster, **REFUSED[case]), capture_output=True, text=True)
     assert result.returncode == 1
     lines = result.stderr.strip().splitlines()

@@ -37,9 +37,21 @@ def test_recommended_grasper_yaml_is_the_shipped_agents_config() -> None:
     assert manifest["command"] == f"trpo-plus train --env {RECOMMENDED_GRASPER} --seed 0 --sim-threads 2 --num-threads 1"
     assert manifest["command"] in (ROOT / "README.md").read_text()
     saved = read_model_data(AGENT / f"{RECOMMENDED_GRASPER}.zip")
-    algorithm_keys = {"n_steps", "batch_size", "gamma", "gae_lambda", "cg_max_steps", "cg_damping", "n_critic_updates",
-                      "replay_memory", "cg_warm_start", "sample_reuse", "reuse_batches", "fisher_sub_sampling",
-                      "overlap_collection"}  # fmt: skip
+    algorithm_keys = {
+        "n_steps",
+        "batch_size",
+        "gamma",
+        "gae_lambda",
+        "cg_max_steps",
+        "cg_damping",
+        "n_critic_updates",
+        "replay_memory",
+        "cg_warm_start",
+        "sample_reuse",
+        "reuse_batches",
+        "fisher_sub_sampling",
+        "overlap_collection",
+    }
     assert algorithm_keys <= set(entry)
     for key in algorithm_keys:
         assert saved[key] == entry[key], key
@@ -90,8 +102,18 @@ def test_trpo_plus_train_wraps_training_envs_only(tmp_path: Path, monkeypatch: p
 
     monkeypatch.setattr(ScriptedStarts, "__init__", counting)
     monkeypatch.chdir(tmp_path)
-    tiny = ["-params", "n_envs:2", "n_steps:16", "batch_size:16", "rollout_workers:None", "overlap_collection:False",
-            "--num-threads", "1", "--vec-env", "dummy"]  # fmt: skip
+    tiny = [
+        "-params",
+        "n_envs:2",
+        "n_steps:16",
+        "batch_size:16",
+        "rollout_workers:None",
+        "overlap_collection:False",
+        "--num-threads",
+        "1",
+        "--vec-env",
+        "dummy",
+    ]
     evaluation = ["--eval-freq", "16", "--eval-episodes", "1", "--n-eval-envs", "1"]
     cli.main(
         ["train", "--env", RECOMMENDED_GRASPER, "-n", "64", "--seed", "0", "-f", str(tmp_path / "logs"), *evaluation, *tiny]

@@ -43,15 +43,24 @@ def _toy_segment() -> Segment:
     rewards = np.array([[1.0], [2.0], [3.0], [4.0]], dtype=np.float32)
     zeros = np.zeros((4, 1), dtype=np.float32)
     return Segment(
-        observations=TOY_VALUES[..., None], raw_observations=np.concatenate([TOY_VALUES, [[10.0]]])[..., None],
-        last_observation=np.array([[10.0]], dtype=np.float32), actions=np.zeros((4, 1, 1), dtype=np.float32),
-        rewards=rewards, buffer_rewards=rewards, raw_rewards=rewards,
+        observations=TOY_VALUES[..., None],
+        raw_observations=np.concatenate([TOY_VALUES, [[10.0]]])[..., None],
+        last_observation=np.array([[10.0]], dtype=np.float32),
+        actions=np.zeros((4, 1, 1), dtype=np.float32),
+        rewards=rewards,
+        buffer_rewards=rewards,
+        raw_rewards=rewards,
         episode_starts=np.array([[1.0], [0.0], [1.0], [0.0]], dtype=np.float32),
-        dones=np.array([[False], [True], [False], [True]]), episode_timesteps=np.array([[0], [1], [0], [1], [0]]),
-        values=zeros, log_probs=zeros, last_values=np.zeros(1, dtype=np.float32), ended=[[], [], [], []],
-        truncated_steps=np.array([[1, 0]]), terminal_observations=np.array([[4.0]], dtype=np.float32),
+        dones=np.array([[False], [True], [False], [True]]),
+        episode_timesteps=np.array([[0], [1], [0], [1], [0]]),
+        values=zeros,
+        log_probs=zeros,
+        last_values=np.zeros(1, dtype=np.float32),
+        ended=[[], [], [], []],
+        truncated_steps=np.array([[1, 0]]),
+        terminal_observations=np.array([[4.0]], dtype=np.float32),
         terminal_timesteps=np.array([2]),
-    )  # fmt: skip
+    )
 
 
 def test_recompute_advantages_hand_computed() -> None:
@@ -134,8 +143,18 @@ def test_effective_sample_size() -> None:
 def test_a_replay_record_of_version_0_1_is_the_same_segment_for_replay() -> None:
     """Models saved by 0.1.0 hold StoredRollout records; converted, they replay exactly as the segment would."""
     converted, segment = _toy_rollout().to_segment(), _toy_segment()
-    for name in ("raw_observations", "raw_rewards", "episode_starts", "dones", "episode_timesteps", "actions",
-                 "log_probs", "truncated_steps", "terminal_observations", "terminal_timesteps"):  # fmt: skip
+    for name in (
+        "raw_observations",
+        "raw_rewards",
+        "episode_starts",
+        "dones",
+        "episode_timesteps",
+        "actions",
+        "log_probs",
+        "truncated_steps",
+        "terminal_observations",
+        "terminal_timesteps",
+    ):
         np.testing.assert_array_equal(getattr(converted, name), getattr(segment, name), err_msg=name)
 
     def value_fn(obs: np.ndarray, t: np.ndarray) -> np.ndarray:

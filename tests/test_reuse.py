@@ -61,9 +61,15 @@ def test_per_sample_weights_average_one_over_the_batches_at_hand() -> None:
 
 @pytest.mark.parametrize(
     ("batches", "max_batches", "message"),
-    [(0.5, 10, "batches must be in"), (6, 10, "batches must be in"), (2, 0, "max_batches"), (True, 4, "batches"),
-     (float("nan"), 4, "finite"), (2, 2.5, "max_batches")],
-)  # fmt: skip
+    [
+        (0.5, 10, "batches must be in"),
+        (6, 10, "batches must be in"),
+        (2, 0, "max_batches"),
+        (True, 4, "batches"),
+        (float("nan"), 4, "finite"),
+        (2, 2.5, "max_batches"),
+    ],
+)
 def test_bad_settings_are_named(batches: object, max_batches: object, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         reuse_weights(batches, max_batches)  # type: ignore[arg-type]
@@ -97,10 +103,14 @@ def test_vtrace_by_hand() -> None:
     A_2 = 0; A_1 = 0.5 + 0.25 * c_2 * A_2 = 0.5; A_0 = 1 + 0.25 * c_1 * A_1 = 1 + 0.25 * 0.25 * 0.5 = 1.03125.
     Targets A * c + V: (1.515625, 2.125, 3)."""
     advantages, returns = vtrace_gae(
-        rewards=np.ones((3, 1), np.float32), values=np.array([[1.0], [2.0], [3.0]], np.float32),
-        dones=np.zeros((3, 1), bool), last_values=np.array([4.0], np.float32),
-        trace_ratios=np.array([[0.5], [0.25], [1.0]], np.float32), gamma=0.5, gae_lambda=0.5,
-    )  # fmt: skip
+        rewards=np.ones((3, 1), np.float32),
+        values=np.array([[1.0], [2.0], [3.0]], np.float32),
+        dones=np.zeros((3, 1), bool),
+        last_values=np.array([4.0], np.float32),
+        trace_ratios=np.array([[0.5], [0.25], [1.0]], np.float32),
+        gamma=0.5,
+        gae_lambda=0.5,
+    )
     np.testing.assert_allclose(advantages[:, 0], [1.03125, 0.5, 0.0])
     np.testing.assert_allclose(returns[:, 0], [1.515625, 2.125, 3.0])
 

@@ -40,9 +40,16 @@ def test_local_processes_collect_what_the_in_process_workers_collect() -> None:
             model, env = train(pool, replay_memory=2)
             buffer = model.rollout_buffer
             results.append(
-                (parameters(model), env.obs_rms.mean.copy(), env.ret_rms.var, buffer.observations.copy(),
-                 buffer.rewards.copy(), buffer.advantages.copy(), [r.rewards.copy() for r in model.rollout_memory])
-            )  # fmt: skip
+                (
+                    parameters(model),
+                    env.obs_rms.mean.copy(),
+                    env.ret_rms.var,
+                    buffer.observations.copy(),
+                    buffer.rewards.copy(),
+                    buffer.advantages.copy(),
+                    [r.rewards.copy() for r in model.rollout_memory],
+                )
+            )
         finally:
             pool.close()
     (a, b) = results
@@ -119,11 +126,13 @@ def test_callbacks_fire_once_per_step_of_the_segments(tmp_path) -> None:
     pool = InProcessRollouts("Reacher2D-v1", num_workers=2, envs_per_worker=2, seed=1)
     eval_env = VecNormalize(DummyVecEnv([lambda: __import__("gymnasium").make("Reacher2D-v1")]), training=False)
     counting = _Counting()
-    callbacks = CallbackList([
-        counting,
-        EvalCallback(eval_env, eval_freq=SMALL["n_steps"], n_eval_episodes=2, log_path=str(tmp_path), verbose=0),
-        CheckpointCallback(save_freq=SMALL["n_steps"], save_path=str(tmp_path), save_vecnormalize=True),
-    ])  # fmt: skip
+    callbacks = CallbackList(
+        [
+            counting,
+            EvalCallback(eval_env, eval_freq=SMALL["n_steps"], n_eval_episodes=2, log_path=str(tmp_path), verbose=0),
+            CheckpointCallback(save_freq=SMALL["n_steps"], save_path=str(tmp_path), save_vecnormalize=True),
+        ]
+    )
     try:
         env = VecNormalize(pool)
         model = TRPOPlus("MlpPolicy", env, seed=0, **SMALL)
@@ -180,9 +189,13 @@ CRASH = "crashing_env:CrashOnce-v0"  # tests/crashing_env.py: its process exits 
 def check_restart_after_a_crash(pool_class, tmp_path) -> None:
     """One of two workers exits mid-segment: it is replaced, its segment collected again, training completes."""
     pool = pool_class(
-        CRASH, num_workers=2, envs_per_worker=2, seed=0, max_restarts=1,
+        CRASH,
+        num_workers=2,
+        envs_per_worker=2,
+        seed=0,
+        max_restarts=1,
         env_kwargs={"marker": str(tmp_path / "crashed"), "at_step": 20},
-    )  # fmt: skip
+    )
     try:
         pids = [worker["pid"] for worker in pool.workers]
         model = TRPOPlus("MlpPolicy", VecNormalize(pool), seed=0, **SMALL)
@@ -217,9 +230,13 @@ def check_crash_beyond_restarts(pool_class, tmp_path, cause: str) -> None:
     """One of two workers exits mid-segment with no restart left: the error names that worker, its envs and how it
     ended, and the weights are those before the segment (the first: no update ran)."""
     pool = pool_class(
-        CRASH, num_workers=2, envs_per_worker=2, seed=0, max_restarts=0,
+        CRASH,
+        num_workers=2,
+        envs_per_worker=2,
+        seed=0,
+        max_restarts=0,
         env_kwargs={"marker": str(tmp_path / "crashed"), "at_step": 20},
-    )  # fmt: skip
+    )
     try:
         model = TRPOPlus("MlpPolicy", pool, seed=0, **SMALL)
         before = parameters(model)
@@ -330,9 +347,23 @@ def test_one_worker_collects_what_sb3s_collection_loop_collects(env_id: str) -> 
     (buffer_a, record_a), (buffer_b, record_b) = collected
     for name in ("observations", "actions", "rewards", "episode_starts", "values", "log_probs", "advantages", "returns"):
         np.testing.assert_array_equal(getattr(buffer_a, name), getattr(buffer_b, name), err_msg=name)
-    for name in ("observations", "raw_observations", "last_observation", "actions", "rewards", "buffer_rewards",
-                 "raw_rewards", "episode_starts", "dones", "episode_timesteps", "values", "log_probs", "last_values",
-                 "truncated_steps", "terminal_timesteps"):  # fmt: skip
+    for name in (
+        "observations",
+        "raw_observations",
+        "last_observation",
+        "actions",
+        "rewards",
+        "buffer_rewards",
+        "raw_rewards",
+        "episode_starts",
+        "dones",
+        "episode_timesteps",
+        "values",
+        "log_probs",
+        "last_values",
+        "truncated_steps",
+        "terminal_timesteps",
+    ):
         np.testing.assert_array_equal(getattr(record_a, name), getattr(record_b, name), err_msg=name)
     assert [[env for env, _ in step] for step in record_a.ended] == [[env for env, _ in step] for step in record_b.ended]
     if env_id == "Reacher2D-v1":

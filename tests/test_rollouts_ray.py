@@ -113,9 +113,28 @@ def test_the_train_command_collects_with_ray_workers(tmp_path, monkeypatch) -> N
 
     monkeypatch.chdir(tmp_path)
     cli.main(
-        ["train", "--env", "Reacher2D-v1", "-n", "256", "--seed", "1", "-f", str(tmp_path), "--eval-freq", "-1",
-         "--workers", "ray:2", "-params", "n_envs:2", "n_steps:64", "batch_size:64", "--num-threads", "1"]
-    )  # fmt: skip
+        [
+            "train",
+            "--env",
+            "Reacher2D-v1",
+            "-n",
+            "256",
+            "--seed",
+            "1",
+            "-f",
+            str(tmp_path),
+            "--eval-freq",
+            "-1",
+            "--workers",
+            "ray:2",
+            "-params",
+            "n_envs:2",
+            "n_steps:64",
+            "batch_size:64",
+            "--num-threads",
+            "1",
+        ]
+    )
     run = tmp_path / "trpo_plus" / "Reacher2D-v1_1"
     assert TRPOPlus.load(run / "Reacher2D-v1.zip").num_timesteps == 256
     assert (run / "workers.monitor.csv").read_text().count("\n") > 2

@@ -169,11 +169,22 @@ def test_logs_the_promised_keys(tmp_path: pathlib.Path) -> None:
     model.learn(192)
     header = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
     for key in [
-        "train/policy_objective", "train/value_loss", "train/kl_divergence_loss", "train/explained_variance",
-        "train/is_line_search_success", "train/std", "train/cg_iterations", "train/cg_residual",
-        "train/cg_warm_start_cosine", "train/line_search_steps", "train/step_size", "train/replay_samples",
-        "train/replay_ess", "train/update_time", "train/fisher_vector_products",
-    ]:  # fmt: skip
+        "train/policy_objective",
+        "train/value_loss",
+        "train/kl_divergence_loss",
+        "train/explained_variance",
+        "train/is_line_search_success",
+        "train/std",
+        "train/cg_iterations",
+        "train/cg_residual",
+        "train/cg_warm_start_cosine",
+        "train/line_search_steps",
+        "train/step_size",
+        "train/replay_samples",
+        "train/replay_ess",
+        "train/update_time",
+        "train/fisher_vector_products",
+    ]:
         assert key in header, key
 
 
@@ -240,9 +251,13 @@ def test_linear_baseline_fits_each_sample_with_its_own_step_in_the_episode(repla
     """The baseline's time features belong to the samples they stand beside: with several envs whose episodes end at
     different steps, the fit equals one on the segment's arrays in its own [step, env] order."""
     model = TRPOPlus(
-        "MlpPolicy", make_vec_env("CartPole-v1", n_envs=2, seed=0), seed=0, value_baseline="linear",
-        replay_memory=replay_memory, **TINY,
-    )  # fmt: skip
+        "MlpPolicy",
+        make_vec_env("CartPole-v1", n_envs=2, seed=0),
+        seed=0,
+        value_baseline="linear",
+        replay_memory=replay_memory,
+        **TINY,
+    )
     model.learn(2 * 2 * 64)
     segment = model.rollout_buffer.segment  # type: ignore[attr-defined]
     steps = segment.episode_timesteps[: segment.n_steps]

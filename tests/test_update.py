@@ -38,9 +38,17 @@ def test_a_step_improves_the_surrogate_inside_the_trust_region() -> None:
     surrogate = surrogate_advantages(batch, distribution.log_prob(batch.actions).detach(), True, None)
     settings = NaturalGradientSettings(cg_max_steps=20, cg_damping=0.01)
     step = natural_gradient_step(
-        model.policy, model._actor_params, batch, batch.actions, distribution, surrogate, anchor,
-        step_kl=0.01, max_kl=0.01, settings=settings,
-    )  # fmt: skip
+        model.policy,
+        model._actor_params,
+        batch,
+        batch.actions,
+        distribution,
+        surrogate,
+        anchor,
+        step_kl=0.01,
+        max_kl=0.01,
+        settings=settings,
+    )
     assert step.line_search.accepted and step.applied_step is not None
     after = model.policy.get_distribution(batch.observations)
     kl = float(kl_divergence(after, anchor).mean())
@@ -63,9 +71,17 @@ def test_update_policy_is_one_natural_gradient_step() -> None:
             distribution = model.policy.get_distribution(batch.observations)
             surrogate = surrogate_advantages(batch, distribution.log_prob(batch.actions).detach(), True, None)
             natural_gradient_step(
-                model.policy, model._actor_params, batch, batch.actions, distribution, surrogate,
-                detached_distribution(distribution), step_kl=0.01, max_kl=0.01, settings=model.natural_gradient_settings,
-            )  # fmt: skip
+                model.policy,
+                model._actor_params,
+                batch,
+                batch.actions,
+                distribution,
+                surrogate,
+                detached_distribution(distribution),
+                step_kl=0.01,
+                max_kl=0.01,
+                settings=model.natural_gradient_settings,
+            )
         else:
             model.update_policy(batch)
         results.append({k: v.clone() for k, v in model.policy.state_dict().items()})

@@ -80,11 +80,21 @@ class RolloutWorkers(VecEnv):
         max_restarts: int = 0,
     ):
         check_arguments(
-            type(self).__name__, POOL_ARGUMENT_RULES,
-            {"env_id": env_id, "num_workers": num_workers, "envs_per_worker": envs_per_worker, "seed": seed,
-             "sim_threads": sim_threads, "env_kwargs": env_kwargs, "scripted_starts": scripted_starts,
-             "info_keywords": info_keywords, "monitor_file": monitor_file, "max_restarts": max_restarts},
-        )  # fmt: skip
+            type(self).__name__,
+            POOL_ARGUMENT_RULES,
+            {
+                "env_id": env_id,
+                "num_workers": num_workers,
+                "envs_per_worker": envs_per_worker,
+                "seed": seed,
+                "sim_threads": sim_threads,
+                "env_kwargs": env_kwargs,
+                "scripted_starts": scripted_starts,
+                "info_keywords": info_keywords,
+                "monitor_file": monitor_file,
+                "max_restarts": max_restarts,
+            },
+        )
         from sb3_trpo_plus.engines import has_batch_engine
 
         if info_keywords is None:
@@ -98,9 +108,13 @@ class RolloutWorkers(VecEnv):
         self.num_workers, self.envs_per_worker = int(num_workers), int(envs_per_worker)
         self.max_restarts = int(max_restarts)
         self.worker_envs = WorkerEnvs(
-            env_id, self.envs_per_worker, int(sim_threads), dict(env_kwargs or {}),
-            None if scripted_starts is None else dict(scripted_starts), tuple(info_keywords),
-        )  # fmt: skip
+            env_id,
+            self.envs_per_worker,
+            int(sim_threads),
+            dict(env_kwargs or {}),
+            None if scripted_starts is None else dict(scripted_starts),
+            tuple(info_keywords),
+        )
         self._base_seed = None if seed is None else int(seed)
         self.restarts = [0] * self.num_workers
         self._fresh: set[int] = set()  # workers restarted since the last segment: their envs were reset
@@ -504,9 +518,10 @@ class RayRollouts(RolloutWorkers):
         **kwargs: Any,
     ):
         check_arguments(
-            type(self).__name__, POOL_ARGUMENT_RULES,
+            type(self).__name__,
+            POOL_ARGUMENT_RULES,
             {"address": address, "cpus_per_worker": cpus_per_worker, "placement_timeout": placement_timeout},
-        )  # fmt: skip
+        )
         self._address = address
         self._cpus_per_worker, self._placement_timeout = float(cpus_per_worker), float(placement_timeout)
         super().__init__(env_id, num_workers, envs_per_worker, max_restarts=max_restarts, **kwargs)

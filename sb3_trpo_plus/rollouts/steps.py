@@ -56,9 +56,14 @@ def step_through_segment(
             update_statistics(vec_normalize, raw_observations[t + 1], segment.raw_rewards[t], dones)
         step_locals = {
             "new_obs": observations[t + 1] if t + 1 < n_steps else segment.last_observation,
-            "rewards": segment.rewards[t], "dones": dones, "infos": infos, "actions": segment.actions[t],
-            "values": th.as_tensor(segment.values[t]), "log_probs": th.as_tensor(segment.log_probs[t]), "n_steps": t,
-        }  # fmt: skip
+            "rewards": segment.rewards[t],
+            "dones": dones,
+            "infos": infos,
+            "actions": segment.actions[t],
+            "values": th.as_tensor(segment.values[t]),
+            "log_probs": th.as_tensor(segment.log_probs[t]),
+            "n_steps": t,
+        }
         if not on_step(step_locals, infos, dones):
             return False
         pool.record_episodes(segment.ended[t])

@@ -62,9 +62,13 @@ class WorkerEnvs:
 
         if engines.has_batch_engine(self.env_id):
             return engines.batch_envs(
-                self.env_id, self.n_envs, n_threads=self.sim_threads, env_kwargs=self.env_kwargs,
-                scripted_starts=self.scripted_starts, info_keywords=self.info_keywords,
-            )  # fmt: skip
+                self.env_id,
+                self.n_envs,
+                n_threads=self.sim_threads,
+                env_kwargs=self.env_kwargs,
+                scripted_starts=self.scripted_starts,
+                info_keywords=self.info_keywords,
+            )
         if self.scripted_starts is not None:
             raise ValueError(f"scripted starts run on the tasks of grasp_envs only, not on {self.env_id!r}")
         from stable_baselines3.common.env_util import make_vec_env
@@ -134,9 +138,13 @@ class RolloutWorker:
         node = ray.get_runtime_context().get_node_id() if ray is not None and ray.is_initialized() else None
         return {
             "node": node,
-            "observation_space": env.observation_space, "action_space": env.action_space, "render_mode": env.render_mode,
-            "pid": os.getpid(), "host": socket.gethostname(), "n_envs": env.num_envs,
-        }  # fmt: skip
+            "observation_space": env.observation_space,
+            "action_space": env.action_space,
+            "render_mode": env.render_mode,
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
+            "n_envs": env.num_envs,
+        }
 
     def set_policy(self, blueprint: bytes) -> None:
         """The policy to sample from, as ``cloudpickle`` bytes of a CPU copy (sent once; weights come with orders)."""
@@ -190,9 +198,14 @@ class RolloutWorker:
         state = LoopState(norm.normalize_obs(raw) if norm is not None else raw, raw, self._episode_starts, self._timesteps)
         with self._own_generator():
             segment = collect_segment(
-                policy, self.env, order.n_steps, state, gamma=order.gamma, normalizer=norm,
+                policy,
+                self.env,
+                order.n_steps,
+                state,
+                gamma=order.gamma,
+                normalizer=norm,
                 source=f"rollout worker {self.index}",
-            )  # fmt: skip
+            )
         assert segment is not None and isinstance(state.raw_observation, np.ndarray)
         self._raw_obs, self._episode_starts, self._timesteps = (
             state.raw_observation,

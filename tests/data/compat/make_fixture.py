@@ -29,9 +29,16 @@ def main() -> None:
     folder.mkdir(exist_ok=True)
     env = VecNormalize(make_vec_env("Pendulum-v1", n_envs=1, seed=0))
     model = TRPOPlus(
-        "MlpPolicy", env, n_steps=64, batch_size=64, replay_memory=2, cg_warm_start=True,
-        policy_kwargs=dict(net_arch=[16]), seed=0, device="cpu",
-    )  # fmt: skip
+        "MlpPolicy",
+        env,
+        n_steps=64,
+        batch_size=64,
+        replay_memory=2,
+        cg_warm_start=True,
+        policy_kwargs=dict(net_arch=[16]),
+        seed=0,
+        device="cpu",
+    )
     model.learn(192)
     model.save(folder / "model.zip")
     save_vec_normalize(env, folder / "vecnormalize.pkl")
