@@ -25,8 +25,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecNormalize
 
-from sb3_trpo_plus.agents import NormalizationStats, load_normalization
-from sb3_trpo_plus.normalization import StatisticsMismatchError, check_statistics_fit
+from sb3_trpo_plus.normalization import NormalizationStats, StatisticsMismatchError, check_statistics_fit, load_normalization
 
 
 @dataclass(frozen=True)

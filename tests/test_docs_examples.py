@@ -60,19 +60,18 @@ def code_blocks(path: Path) -> Iterator[tuple[int, str, str, bool]]:
 
 
 def blocks(languages: set[str]) -> list[Any]:
-    return [
-        # a block that starts Ray shares the xdist worker of the Ray tests (one Ray instance at a time)
-        pytest.param(
-            path,
-            text,
-            shortened,
-            id=f"{path.relative_to(ROOT)}:{line}",
-            marks=[pytest.mark.xdist_group("ray")] * ("ray" in text),
-        )
-        for path in DOCUMENTS
-        for line, language, text, shortened in code_blocks(path)
-        if language in languages
-    ]
+    """The blocks of ``languages`` in every document, each text once (the README and the home page share one)."""
+    seen: set[tuple[str, bool]] = set()
+    params = []
+    for path in DOCUMENTS:
+        for line, language, text, shortened in code_blocks(path):
+            if language not in languages or (text, shortened) in seen:
+                continue
+            seen.add((text, shortened))
+            # a block that starts Ray shares the xdist worker of the Ray tests (one Ray instance at a time)
+            marks = [pytest.mark.xdist_group("ray")] * ("ray" in text)
+            params.append(pytest.param(path, text, shortened, id=f"{path.relative_to(ROOT)}:{line}", marks=marks))
+    return params
 
 
 def shorten(text: str) -> str:

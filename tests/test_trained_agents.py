@@ -47,7 +47,8 @@ def test_enjoy_finds_the_shipped_agent_without_a_folder(env_id: str, tmp_path: P
     assert _default_folder("trpo_plus", env_id) == "logs"
 
 
-def test_held_out_evaluation_of_a_shipped_agent_is_reproducible() -> None:
+def test_held_out_evaluation_of_a_shipped_agent_is_reproducible(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.syspath_prepend(str(ROOT))  # benchmarks/ is a package of the checkout, not installed
     from benchmarks.held_out import held_out
 
     run = TRAINED_AGENTS / "trpo_plus" / "Reacher3D-v0_1"
