@@ -211,7 +211,12 @@ def _arguments(constructor: Constructor) -> dict[str, inspect.Parameter]:
     own = inspect.signature(constructor.call).parameters
     forwarded = inspect.signature(constructor.forwards_to).parameters if constructor.forwards_to else {}
     merged = {**forwarded, **own}
-    return {name: p for name, p in merged.items() if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)}
+    # Ray's tracing adds ``_ray_trace_ctx`` to the signature of a class once ``ray.remote`` wrapped it in this process
+    return {
+        name: p
+        for name, p in merged.items()
+        if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL) and not name.startswith("_ray_")
+    }
 
 
 BATCH_TABLE: dict[str, Row] = {
