@@ -727,10 +727,10 @@ def agents_section(manifest_path: Path) -> list[str]:
 def evaluate_agent(folder: Path, env_id: str, episodes: int = AGENT_EPISODES, seed: int = AGENT_SEED) -> dict[str, float]:
     """Deterministic success rate and mean return of an exported agent over ``episodes`` episodes, the env seeded once
     with ``seed`` (as the study evaluates)."""
-    from sb3_trpo_plus.cli import _load_trained
     from sb3_trpo_plus.evaluation import evaluate_agent as evaluate
+    from sb3_trpo_plus.run_folders import load_trained
 
-    model, env, _ = _load_trained("trpo_plus", env_id, str(folder), 1, False, seed, False)
+    model, env, _ = load_trained("trpo_plus", env_id, str(folder), 1, False, seed, False)
     result = evaluate(model, env, episodes, seed, seed_every_episode=False)
     env.close()
     return {"success_rate": result.success_rate, "mean_reward": result.mean_return}

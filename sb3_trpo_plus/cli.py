@@ -7,33 +7,22 @@ import ``grasp_envs`` and default ``-conf`` to our validated YAML for the chosen
 from __future__ import annotations
 
 import argparse
-import contextlib
 import functools
 import json
 import os
 import sys
 import textwrap
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
 import numpy as np
 
 from sb3_trpo_plus.arguments import ArgumentError, CommandLineParser
+from sb3_trpo_plus.run_folders import RunNotFoundError, default_folder, load_trained, validated_run_folders
 
 ALGO_CHOICES = ("trpo_plus", "trpo", "ppo")
 ALGO_HELP = "trpo_plus (TRPOPlus), trpo (sb3-contrib's TRPO) or ppo (SB3's PPO); default: trpo_plus"
-# Shipped agents: the source checkout's folder; a wheel carries none, so then ./trained_agents (a clone or a download)
-_CHECKOUT_AGENTS = Path(__file__).resolve().parents[1] / "trained_agents"
-TRAINED_AGENTS = _CHECKOUT_AGENTS if _CHECKOUT_AGENTS.is_dir() else Path("trained_agents")
-
-
-def _default_folder(algo: str, env: str) -> str:
-    """``logs`` when it holds a run of (algo, env), else the shipped ``trained_agents`` when that does."""
-    for folder in (Path("logs"), TRAINED_AGENTS):
-        if any((folder / algo).glob(f"{env}_[0-9]*")):
-            return str(folder)
-    return "logs"
 
 
 def _headless() -> None:
@@ -365,11 +354,11 @@ def enjoy(argv: Sequence[str]) -> dict[str, Any]:
     if not args.no_render and os.environ.get("MUJOCO_GL") == "egl" and not os.environ.get("DISPLAY"):
         print("trpo-plus enjoy: no display, running with --no-render (trpo-plus record-video films the agent)")
         args.no_render = True
-    folder = args.folder or _default_folder(args.algo, args.env)
+    folder = args.folder or default_folder(args.algo, args.env)
     print(f"trpo-plus enjoy: loading from {folder}")
     checkpoint = None if args.load_checkpoint is None else str(args.load_checkpoint)
     try:
-        agent, env, _ = _load_trained(
+        agent, env, _ = load_trained(
             args.algo,
             args.env,
             folder,
@@ -442,148 +431,15 @@ def _zoo_enjoy(argv: Sequence[str]) -> dict[str, Any]:
     if os.environ.get("MUJOCO_GL") == "egl" and not os.environ.get("DISPLAY") and "--no-render" not in rest:
         print("trpo-plus enjoy: no display, running with --no-render (trpo-plus record-video films the agent)")
         rest = [*rest, "--no-render"]
-    folder = known.folder or _default_folder(known.algo, known.env)
+    folder = known.folder or default_folder(known.algo, known.env)
     print(f"trpo-plus enjoy: loading from {folder} (--trust-pickle: rl-zoo3 unpickles the run)")
     zoo_argv = ["--algo", known.algo, "--env", known.env, "-f", folder, "--exp-id", str(known.exp_id), *packages, *rest]
     try:
-        with zoo_command_line(zoo_argv), zoo_parser(rl_zoo3.enjoy, parser.prog), _validated_run_folders(known.env):
+        with zoo_command_line(zoo_argv), zoo_parser(rl_zoo3.enjoy, parser.prog), validated_run_folders(known.env):
             rl_zoo3.enjoy.enjoy()
     except RunNotFoundError as error:
         _fail(parser, str(error))
     return {}
-
-
-@contextlib.contextmanager
-def _validated_run_folders(env_id: str) -> Iterator[None]:
-    """While open, each run folder rl-zoo3's enjoy picks (``get_model_path``: a local run, or one it has just
-    downloaded from the Hugging Face hub) is checked by :func:`sb3_trpo_plus.agents.validate_run_files` before
-    rl-zoo3 reads its ``config.yml`` / ``args.yml`` with ``yaml.UnsafeLoader`` and evaluates ``normalize``; a damaged
-    ``vecnormalize.pkl`` raises :class:`~sb3_trpo_plus.agents.RunFileError` naming it; the test env gets the run's
-    ``env_wrapper`` without its training aids (:func:`sb3_trpo_plus.zoo.evaluation_wrappers`). rl-zoo3's ``enjoy``
-    has no hooks for these: its module's names are replaced for the call and restored after it."""
-    import rl_zoo3.enjoy as enjoy_module
-    import rl_zoo3.utils as zoo_utils
-    from stable_baselines3.common.vec_env import VecNormalize
-
-    from sb3_trpo_plus.agents import load_trusted_file, validate_run_files
-    from sb3_trpo_plus.zoo import evaluation_wrappers
-
-    original = enjoy_module.get_model_path
-
-    @functools.wraps(original)
-    def get_model_path(exp_id: int, folder: str, *args: Any, **kwargs: Any) -> tuple[str, str, str]:
-        if "rl-trained-agents" in folder:  # rl-zoo3 downloads a run it does not find there
-            name_prefix, model_path, log_path = original(exp_id, folder, *args, **kwargs)
-        else:
-            name_prefix, model_path, log_path = _model_path(original, exp_id, folder, *args, **kwargs)
-        validate_run_files(log_path, env_id)
-        return name_prefix, model_path, log_path
-
-    class NamingVecNormalize(VecNormalize):
-        """What rl-zoo3's ``create_test_env`` calls to unpickle the run's statistics."""
-
-        @staticmethod
-        def load(load_path: str, venv: Any) -> VecNormalize:
-            return load_trusted_file(lambda: VecNormalize.load(load_path, venv), Path(load_path))
-
-    create_test_env = enjoy_module.create_test_env
-
-    @functools.wraps(create_test_env)
-    def evaluation_test_env(*args: Any, **kwargs: Any) -> Any:
-        hyperparams = kwargs.get("hyperparams")
-        if hyperparams is not None and "env_wrapper" in hyperparams:
-            kwargs["hyperparams"] = {**hyperparams, "env_wrapper": evaluation_wrappers(hyperparams["env_wrapper"])}
-        return create_test_env(*args, **kwargs)
-
-    enjoy_module.get_model_path = get_model_path
-    enjoy_module.create_test_env = evaluation_test_env
-    zoo_utils.VecNormalize = NamingVecNormalize  # type: ignore[misc]
-    try:
-        yield
-    finally:
-        enjoy_module.get_model_path = original
-        enjoy_module.create_test_env = create_test_env
-        zoo_utils.VecNormalize = VecNormalize  # type: ignore[misc]
-
-
-def _load_trained(
-    algo: str,
-    env_id: str,
-    folder: str,
-    exp_id: int,
-    load_best: bool,
-    seed: int,
-    render: bool,
-    *,
-    trust_pickle: bool = False,
-    n_envs: int = 1,
-    render_mode: str | None = None,
-    env_kwargs: dict[str, Any] | None = None,
-    load_checkpoint: str | None = None,
-    load_last_checkpoint: bool = False,
-    norm_reward: bool = False,
-    device: str = "cpu",
-) -> tuple[Any, Any, str]:
-    """Agent and test env of an rl-zoo3 run (VecNormalize statistics and env kwargs restored), and the run folder.
-
-    The weights-only path by default (:mod:`sb3_trpo_plus.agents`: nothing in the run is unpickled or evaluated);
-    ``trust_pickle`` loads the full model with SB3. ``render`` makes the env render RGB frames.
-    The env is seeded with ``seed`` (SB3's ``load(path, env=env)`` would reseed it with the model's training seed).
-    """
-    from huggingface_sb3 import EnvironmentName
-    from rl_zoo3.utils import get_model_path
-
-    from sb3_trpo_plus.agents import load_eval_agent
-
-    env_name = EnvironmentName(env_id)
-    _, model_path, log_path = _model_path(
-        get_model_path, exp_id, folder, algo, env_name, load_best, load_checkpoint, load_last_checkpoint
-    )
-    agent, env = load_eval_agent(
-        log_path,
-        env_id,
-        model_path=model_path,
-        trust_pickle=trust_pickle,
-        seed=seed,
-        n_envs=n_envs,
-        render_mode="rgb_array" if render else render_mode,
-        env_kwargs=env_kwargs,
-        norm_reward=norm_reward,
-        device=device,
-    )
-    return agent, env, log_path
-
-
-class RunNotFoundError(FileNotFoundError):
-    """No run, or no model file in it, where the command line points (``-f``, ``--algo``, ``--env``, ``--exp-id``)."""
-
-
-def _model_path(
-    get_model_path: Callable[..., tuple[str, str, str]],
-    exp_id: int,
-    folder: str,
-    algo: str,
-    env_name: Any,
-    load_best: bool = False,
-    load_checkpoint: str | None = None,
-    load_last_checkpoint: bool = False,
-) -> tuple[str, str, str]:
-    """rl-zoo3's ``get_model_path`` (name prefix, model file, run folder), a missing run folder or model file raised
-    as :class:`RunNotFoundError` naming it (rl-zoo3 asserts, and takes ``<folder>/<algo>`` for the run when it holds
-    none)."""
-    from rl_zoo3.utils import get_latest_run_id
-
-    algo_folder = os.path.join(folder, algo)
-    if not os.path.isdir(algo_folder):
-        raise RunNotFoundError(f"no run of {env_name} for --algo {algo} in {folder}: {algo_folder} is no folder")
-    if exp_id == 0 and get_latest_run_id(algo_folder, env_name) == 0:
-        raise RunNotFoundError(f"no run of {env_name} in {algo_folder} (<env>_<N> folders)")
-    if exp_id > 0 and not os.path.isdir(os.path.join(algo_folder, f"{env_name}_{exp_id}")):
-        raise RunNotFoundError(f"--exp-id {exp_id}: no run folder {os.path.join(algo_folder, f'{env_name}_{exp_id}')}")
-    try:
-        return get_model_path(exp_id, folder, algo, env_name, load_best, load_checkpoint, load_last_checkpoint)
-    except (AssertionError, ValueError) as error:  # rl-zoo3's words for a missing run folder or model file
-        raise RunNotFoundError(str(error)) from None
 
 
 def record_video(argv: Sequence[str]) -> list[Path]:
@@ -619,9 +475,9 @@ def record_video(argv: Sequence[str]) -> list[Path]:
     args = parser.parse_args(argv)
     output = None if args.output is None else _video_path(parser, args.output, args.env)
     _headless()
-    args.folder = args.folder or _default_folder(args.algo, args.env)
+    args.folder = args.folder or default_folder(args.algo, args.env)
     try:
-        model, env, log_path = _load_trained(
+        model, env, log_path = load_trained(
             args.algo, args.env, args.folder, args.exp_id, args.load_best, args.seed, True, trust_pickle=args.trust_pickle
         )
     except RunNotFoundError as error:
@@ -781,7 +637,7 @@ def main_job(argv: Sequence[str]) -> dict[str, Any]:
         zoo_args += ["--sim-threads", str(args.sim_threads)]
     train(["--algo", args.algo, "--env", args.env, *zoo_args])
 
-    model, env, log_path = _load_trained(args.algo, args.env, str(logs), 0, False, 10_000 + args.seed, False)
+    model, env, log_path = load_trained(args.algo, args.env, str(logs), 0, False, 10_000 + args.seed, False)
     summary = {"env": args.env, "algo": args.algo, "seed": args.seed, "model": str(Path(log_path) / f"{args.env}.zip")}
     from sb3_trpo_plus.evaluation import evaluate_agent
 

@@ -10,7 +10,7 @@ import pytest
 import yaml
 from stable_baselines3.common.env_util import make_vec_env
 
-from sb3_trpo_plus import TRPOPlus, cli
+from sb3_trpo_plus import TRPOPlus, cli, run_folders
 from sb3_trpo_plus.arguments import ArgumentError
 from sb3_trpo_plus.segment import SegmentDictRolloutBuffer, SegmentRolloutBuffer
 from sb3_trpo_plus.zoo import HyperparameterError, config_module, load_hyperparameters
@@ -120,11 +120,11 @@ ERROR_CASES = {
         "no run of Reacher2D-v1",
     ),
     "enjoy-exp-id": (
-        ["enjoy", "--env", "Reacher2D-v1", "-f", str(cli.TRAINED_AGENTS), "--exp-id", "99"],
+        ["enjoy", "--env", "Reacher2D-v1", "-f", str(run_folders.TRAINED_AGENTS), "--exp-id", "99"],
         "--exp-id 99: no run folder",
     ),
     "enjoy-no-model": (
-        ["enjoy", "--env", "Reacher2D-v1", "-f", str(cli.TRAINED_AGENTS), "--load-best", "--no-render"],
+        ["enjoy", "--env", "Reacher2D-v1", "-f", str(run_folders.TRAINED_AGENTS), "--load-best", "--no-render"],
         "No model found for trpo_plus on Reacher2D-v1",
     ),
     "enjoy-env-kwargs": (["enjoy", "--env", "Reacher2D-v1", "--env-kwargs", "nocolon"], "expected KEY:VALUE"),
@@ -166,7 +166,16 @@ def test_a_hyperparameter_override_that_cannot_work_is_one_line(
 
 @pytest.mark.parametrize("output", ["{tmp}", "{tmp}/new/", "{tmp}/videos"], ids=["folder", "separator", "no-suffix"])
 def test_record_video_writes_into_a_folder(output: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    argv = ["--env", "Reacher2D-v1", "-f", str(cli.TRAINED_AGENTS), "-n", "3", "-o", output.replace("{tmp}", str(tmp_path))]
+    argv = [
+        "--env",
+        "Reacher2D-v1",
+        "-f",
+        str(run_folders.TRAINED_AGENTS),
+        "-n",
+        "3",
+        "-o",
+        output.replace("{tmp}", str(tmp_path)),
+    ]
     (path,) = cli.record_video(argv)
     assert path == Path(output.replace("{tmp}", str(tmp_path))) / "Reacher2D-v1.mp4"
     assert path.stat().st_size > 0 and f"wrote {path}" in capsys.readouterr().out

@@ -23,7 +23,7 @@ import yaml
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sb3_trpo_plus import TRPOPlus, cli
+from sb3_trpo_plus import TRPOPlus, cli, run_folders
 from sb3_trpo_plus.agents import (
     RunFileError,
     load_agent,
@@ -35,7 +35,7 @@ from sb3_trpo_plus.agents import (
 )
 from sb3_trpo_plus.callbacks import save_vec_normalize
 
-TRAINED = cli.TRAINED_AGENTS / "trpo_plus"
+TRAINED = run_folders.TRAINED_AGENTS / "trpo_plus"
 
 
 class RunsCommand:

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from sb3_trpo_plus.cli import TRAINED_AGENTS, _load_trained
 from sb3_trpo_plus.evaluation import evaluate_agent
+from sb3_trpo_plus.run_folders import TRAINED_AGENTS, load_trained
 
 ROOT = Path(__file__).resolve().parents[1]
 MANIFEST = json.loads((TRAINED_AGENTS / "agents.json").read_text()) if (TRAINED_AGENTS / "agents.json").exists() else {}
@@ -30,7 +30,7 @@ def test_trained_agent_reaches_its_documented_success_rate(env_id: str) -> None:
     row = re.search(rf"^\| `{re.escape(env_id)}` \|.*$", docs, flags=re.MULTILINE)
     assert row is not None, f"docs/results.md has no trained-agent row for {env_id}"
     assert f"{entry['success_rate']:.2f}" in row.group(0)
-    model, env, _ = _load_trained("trpo_plus", env_id, str(TRAINED_AGENTS), 1, False, entry["eval_seed"], False)
+    model, env, _ = load_trained("trpo_plus", env_id, str(TRAINED_AGENTS), 1, False, entry["eval_seed"], False)
     # the env seeded once with the entry's seed, as it was made, and the later episodes from its own generator
     result = evaluate_agent(model, env, entry["episodes"], seed=entry["eval_seed"], seed_every_episode=False)
     env.close()
@@ -39,12 +39,12 @@ def test_trained_agent_reaches_its_documented_success_rate(env_id: str) -> None:
 
 @pytest.mark.parametrize("env_id", sorted(MANIFEST)[:1])
 def test_enjoy_finds_the_shipped_agent_without_a_folder(env_id: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from sb3_trpo_plus.cli import _default_folder
+    from sb3_trpo_plus.run_folders import default_folder
 
     monkeypatch.chdir(tmp_path)  # no ./logs here
-    assert _default_folder("trpo_plus", env_id) == str(TRAINED_AGENTS)
+    assert default_folder("trpo_plus", env_id) == str(TRAINED_AGENTS)
     (tmp_path / "logs" / "trpo_plus" / f"{env_id}_1").mkdir(parents=True)
-    assert _default_folder("trpo_plus", env_id) == "logs"
+    assert default_folder("trpo_plus", env_id) == "logs"
 
 
 def test_held_out_evaluation_of_a_shipped_agent_is_reproducible(monkeypatch: pytest.MonkeyPatch) -> None:

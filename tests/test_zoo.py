@@ -16,6 +16,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_trpo_plus import cli, make_model
+from sb3_trpo_plus.run_folders import load_trained
 from sb3_trpo_plus.zoo import ALGO_FILES, ZOO_DIR, HyperparameterError, algorithms, load_hyperparameters
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -275,7 +276,7 @@ def test_a_saved_runs_env_kwargs_come_back_as_rl_zoo3s_enjoy_reads_them(tmp_path
     (run / "Grasper3D-v6" / "config.yml").write_text(json.dumps(config))
 
     def start_pose() -> str:
-        _, env, _ = cli._load_trained("trpo_plus", "Grasper3D-v6", str(tmp_path), 1, False, 0, False)
+        _, env, _ = load_trained("trpo_plus", "Grasper3D-v6", str(tmp_path), 1, False, 0, False)
         pose = env.get_attr("_ezpickle_kwargs")[0]["start_pose"]
         env.close()
         return pose
