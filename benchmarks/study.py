@@ -273,7 +273,7 @@ BUDGET_COMPARISONS = STUDY.budget_comparisons
 def hyperparameters(variant: Variant, env_id: str) -> dict[str, Any]:
     """The zoo hyperparameters of ``variant.algo`` on ``env_id`` with the variant's on top (its policy_kwargs add to
     the zoo's net_arch, activation, ...; its env_kwargs replace the zoo's)."""
-    from sb3_trpo_plus.zoo import load_hyperparameters
+    from sb3_trpo_plus.zoo import load_hyperparameters, parse_policy_kwargs
 
     pinned = ENVS[env_id].zoo.get(variant.algo) if env_id in ENVS else None
     if pinned is not None:  # the zoo entry the study keeps for this env (study.yml's zoo)
@@ -286,7 +286,9 @@ def hyperparameters(variant: Variant, env_id: str) -> dict[str, Any]:
                 raise StudyError(f"variant {variant.name}: {key} is a multiple of the zoo's, and {env_id}'s has none")
             params[key] = value.of(params[key])
         else:
-            params[key] = {**params.get(key, {}), **value} if key == "policy_kwargs" else value
+            if key == "policy_kwargs":  # names (activation_fn: relu) read as the zoo's are
+                value = {**params.get(key, {}), **parse_policy_kwargs(value, f"variant {variant.name}")}
+            params[key] = value
     if variant.env_kwargs is not None:
         params["env_kwargs"] = dict(variant.env_kwargs)
     return params

@@ -1083,3 +1083,12 @@ def test_a_malformed_budget_comparison_is_refused_naming_the_problem(tmp_path: P
     path.write_text(yaml.safe_dump(data))
     with pytest.raises(StudyError, match=re.escape(message)):
         study.load_study(path)
+
+
+def test_a_variants_policy_kwargs_are_read_as_the_zoos() -> None:
+    """An activation named in a variant's policy_kwargs becomes the class, as in the zoo files."""
+    import torch as th
+
+    params = study.hyperparameters(study.VARIANTS["generalized_reuse_ppo_policy"], "HalfCheetah-v5")
+    assert params["policy_kwargs"]["activation_fn"] is th.nn.ReLU
+    assert params["policy_kwargs"]["net_arch"] == {"pi": [256, 256], "vf": [256, 256]}
