@@ -54,7 +54,7 @@ def training_envs(
         monitor_kwargs=monitor_kwargs,
     )
     if vec_env == "batch":
-        from sb3_trpo_plus.zoo import batch_training_env
+        from sb3_trpo_plus.application.zoo import batch_training_env
 
         return batch_training_env(env_id, n_threads=1, **kwargs)
     if vec_env != "dummy":
@@ -73,10 +73,10 @@ def normalized_training_envs(env_id: str, variant: str, seed: int) -> Any:
 
 def evaluation_env(env_id: str, variant: str, seed: int, normalization: Any = None) -> Any:
     """One monitored evaluation env of ``variant`` seeded with ``seed``: its env kwargs, no training wrappers; with
-    ``normalization`` (a vecnormalize.pkl path, or the training VecNormalize: ``sb3_trpo_plus.evaluation``'s forms)
+    ``normalization`` (a vecnormalize.pkl path, or the training VecNormalize: ``sb3_trpo_plus.application.evaluation``'s forms)
     a VecNormalize with the run's settings that neither updates the statistics nor scales rewards."""
     import grasp_envs  # noqa: F401
-    from sb3_trpo_plus.evaluation import evaluation_env as make_evaluation_env
+    from sb3_trpo_plus.application.evaluation import evaluation_env as make_evaluation_env
 
     return make_evaluation_env(env_id, model_settings(env_id, variant).env_kwargs, normalization, seed)
 
@@ -97,7 +97,7 @@ def _algorithm_class(variant: Variant) -> Any:
     if variant.algo_class is not None:
         module, _, name = variant.algo_class.rpartition(".")
         return getattr(importlib.import_module(module), name)
-    from sb3_trpo_plus.zoo import algorithms
+    from sb3_trpo_plus.application.zoo import algorithms
 
     return algorithms()[variant.algo]
 

@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 import torch as th
 
-import sb3_trpo_plus.update as update_module
+import sb3_trpo_plus.algorithm.update as update_module
 from benchmarks.machine import cpu_name
-from sb3_trpo_plus.natural_gradient import ConjugateGradientResult, conjugate_gradient
+from sb3_trpo_plus.algorithm.natural_gradient import ConjugateGradientResult, conjugate_gradient
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -49,16 +49,16 @@ def timed(seconds: dict[str, float], phase: str, function: Callable[..., Any]) -
 def measure(env_id: str, sim_threads: int, segments: int, repeats: int) -> dict[str, Any]:
     """Per repeat, the seconds per segment of the whole collection and of each phase."""
     from grasp_envs.batch import BatchVecEnv
-    from sb3_trpo_plus import segment
-    from sb3_trpo_plus.recipes import make_model
-    from sb3_trpo_plus.rollouts import rollout_workers
+    from sb3_trpo_plus.algorithm import segment
+    from sb3_trpo_plus.application.recipes import make_model
+    from sb3_trpo_plus.rollouts import RolloutWorkers, rollout_workers
     from sb3_trpo_plus.rollouts.worker import RolloutWorker, SegmentOrder
 
     th.set_num_threads(1)
     # the recipe's model with one in-process worker: its policy and its workers' envs, as training builds them
     model = make_model(env_id, seed=0, sim_threads=sim_threads, workers="inprocess:1")
     found = rollout_workers(model.get_env())  # type: ignore[arg-type]
-    assert found is not None
+    assert found is not None and isinstance(found[0], RolloutWorkers)
     envs = found[0].worker_envs
     n_envs, n_steps = envs.n_envs, int(model.n_steps)
     worker = RolloutWorker(0, envs, torch_seed=0)

@@ -29,7 +29,7 @@ from torch import nn
 
 import grasp_envs  # noqa: F401
 from sb3_trpo_plus import TRPOPlus
-from sb3_trpo_plus.callbacks import EpisodeStats
+from sb3_trpo_plus.application.callbacks import EpisodeStats
 
 ALGOS: dict[str, type[TRPO]] = {"trpo": TRPO, "trpo_plus": TRPOPlus}
 

@@ -2,7 +2,7 @@
 
     python -m benchmarks.held_out logs/trpo_plus/Grasper3D-v7_1 --env Grasper3D-v7 --episodes 200 --seed 30000
 
-Loads the run through the weights-only path (``sb3_trpo_plus.agents.load_eval_agent``: nothing unpickled or
+Loads the run through the weights-only path (``sb3_trpo_plus.application.agents.load_eval_agent``: nothing unpickled or
 evaluated; VecNormalize statistics frozen; the training-only wrappers, such as ``ScriptedStarts``, left out) and
 runs ``--episodes`` episodes, episode ``k`` reset with seed ``--seed + k`` (``evaluate_agent``). Prints one JSON
 object: episodes, first reset seed, success rate, successes, mean return. Pick the seeds away from those that chose
@@ -16,8 +16,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from sb3_trpo_plus.agents import load_eval_agent
-from sb3_trpo_plus.evaluation import evaluate_agent
+from sb3_trpo_plus.application.agents import load_eval_agent
+from sb3_trpo_plus.application.evaluation import evaluate_agent
 
 
 def held_out(run: Path, env_id: str | None, episodes: int, seed: int) -> dict[str, Any]:

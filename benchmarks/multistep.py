@@ -22,8 +22,8 @@ import numpy as np
 from stable_baselines3.common.distributions import Distribution
 
 from sb3_trpo_plus import TRPOPlus
-from sb3_trpo_plus.natural_gradient import detached_distribution
-from sb3_trpo_plus.update import (
+from sb3_trpo_plus.algorithm.natural_gradient import detached_distribution
+from sb3_trpo_plus.algorithm.update import (
     PolicyBatch,
     PolicyStep,
     natural_gradient_step,

@@ -1,7 +1,7 @@
 """The convergence study's evaluation protocol, and the re-evaluation of kept checkpoints.
 
 Every evaluation runs the deterministic policy with the VecNormalize statistics of its checkpoint (fixed) on the
-variant's evaluation env (its env kwargs, no training wrappers), the env seeded once (``sb3_trpo_plus.evaluation``
+variant's evaluation env (its env kwargs, no training wrappers), the env seeded once (``sb3_trpo_plus.application.evaluation``
 with ``seed_every_episode=False``): during training EVAL_EPISODES episodes from reset seed EVAL_SEED, the same at
 every chunk and in every run. ``reevaluate`` evaluates kept checkpoints again on more episodes from other reset
 seeds, and ``confirm`` runs the confirmation protocol, which decides whether a Grasper run holds its target after 2M
@@ -30,7 +30,7 @@ CONFIRMATION_EPISODES, CONFIRMATION_SEEDS = 200, (30_000, 40_000)
 def evaluate(model: Any, env: Any, episodes: int, seed: int = EVAL_SEED) -> tuple[float, float]:
     """(mean return, success rate) of the deterministic policy over ``episodes`` episodes, the env seeded once with
     ``seed``."""
-    from sb3_trpo_plus.evaluation import evaluate_agent
+    from sb3_trpo_plus.application.evaluation import evaluate_agent
 
     result = evaluate_agent(model, env, episodes, seed, seed_every_episode=False)
     return result.mean_return, result.success_rate

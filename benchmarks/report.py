@@ -727,8 +727,8 @@ def agents_section(manifest_path: Path) -> list[str]:
 def evaluate_agent(folder: Path, env_id: str, episodes: int = AGENT_EPISODES, seed: int = AGENT_SEED) -> dict[str, float]:
     """Deterministic success rate and mean return of an exported agent over ``episodes`` episodes, the env seeded once
     with ``seed`` (as the study evaluates)."""
-    from sb3_trpo_plus.evaluation import evaluate_agent as evaluate
-    from sb3_trpo_plus.run_folders import load_trained
+    from sb3_trpo_plus.application.evaluation import evaluate_agent as evaluate
+    from sb3_trpo_plus.application.run_folders import load_trained
 
     model, env, _ = load_trained("trpo_plus", env_id, str(folder), 1, False, seed, False)
     result = evaluate(model, env, episodes, seed, seed_every_episode=False)
@@ -797,7 +797,7 @@ def export_agents(out: Path, envs: list[str], folder: Path) -> None:
         if config.get("env_kwargs"):
             exported["env_kwargs"] = config["env_kwargs"]
         print(f"{env_id}: {variant} seed {seed}: success {result['success_rate']:.2f}, return {result['mean_reward']:.2f}")
-        from sb3_trpo_plus.cli import record_video
+        from sb3_trpo_plus.application.cli import record_video
 
         video = ROOT / "docs" / "videos" / f"{env_id}.mp4"
         record_video(["--env", env_id, "-f", str(folder), "--exp-id", "1", "--seed", str(AGENT_SEED), "-o", str(video)])

@@ -44,7 +44,7 @@ def run_job(
     from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from sb3_trpo_plus.callbacks import EpisodeStats
+    from sb3_trpo_plus.application.callbacks import EpisodeStats
 
     th.set_num_threads(1)
     if VARIANTS[variant].zero_cg_start:

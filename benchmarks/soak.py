@@ -131,7 +131,7 @@ def soak(args: argparse.Namespace) -> dict[str, Any]:
     from stable_baselines3.common.vec_env import VecNormalize
 
     from sb3_trpo_plus import TRPOPlus
-    from sb3_trpo_plus.callbacks import save_vec_normalize
+    from sb3_trpo_plus.application.callbacks import save_vec_normalize
 
     th.set_num_threads(1)
     total = args.cycles * args.cycle_steps

@@ -184,7 +184,7 @@ def _pinned_zoo(env_id: str, entries: Mapping[str, Any]) -> dict[str, dict[str, 
     zoo files' entries are (``load_hyperparameters``)."""
     import tempfile
 
-    from sb3_trpo_plus.zoo import load_hyperparameters
+    from sb3_trpo_plus.application.zoo import load_hyperparameters
 
     pinned = {}
     for algo, entry in entries.items():
@@ -273,7 +273,7 @@ BUDGET_COMPARISONS = STUDY.budget_comparisons
 def hyperparameters(variant: Variant, env_id: str) -> dict[str, Any]:
     """The zoo hyperparameters of ``variant.algo`` on ``env_id`` with the variant's on top (its policy_kwargs add to
     the zoo's net_arch, activation, ...; its env_kwargs replace the zoo's)."""
-    from sb3_trpo_plus.zoo import load_hyperparameters, parse_policy_kwargs
+    from sb3_trpo_plus.application.zoo import load_hyperparameters, parse_policy_kwargs
 
     pinned = ENVS[env_id].zoo.get(variant.algo) if env_id in ENVS else None
     if pinned is not None:  # the zoo entry the study keeps for this env (study.yml's zoo)
@@ -312,13 +312,12 @@ class ModelSettings:
 
 def settings(variant: Variant, env_id: str) -> ModelSettings:
     """The zoo settings of ``variant`` on ``env_id``, split as the study builds its envs and model."""
-    params = hyperparameters(variant, env_id)
-    n_envs, normalize = int(params.pop("n_envs", 1)), params.pop("normalize", False)
-    policy = params.pop("policy")
-    for key in ("n_timesteps", "callback", "monitor_kwargs", "normalize_kwargs", "env_wrapper", "vec_env_wrapper"):
-        params.pop(key, None)
-    env_kwargs = dict(params.pop("env_kwargs", None) or {})  # the evaluation envs' (and, under the wrappers, training)
-    return ModelSettings(params, n_envs, normalize_kwargs(normalize, params), policy, env_kwargs)
+    from sb3_trpo_plus.application.zoo import Recipe
+
+    chosen = Recipe.of(env_id, variant.algo, hyperparameters(variant, env_id))
+    kwargs = dict(chosen.constructor)
+    env_kwargs = dict(chosen.env_kwargs or {})  # the evaluation envs' (and, under the wrappers, training)
+    return ModelSettings(kwargs, chosen.n_envs, normalize_kwargs(chosen.normalize, kwargs), chosen.policy, env_kwargs)
 
 
 def train_wrappers(variant: Variant, env_id: str) -> list[Any]:
@@ -328,7 +327,7 @@ def train_wrappers(variant: Variant, env_id: str) -> list[Any]:
     aid: rl-zoo3 would wrap the evaluation envs with that one too, and the study's evaluation envs carry none."""
     if variant.train_wrappers is not None:
         return list(variant.train_wrappers)
-    from sb3_trpo_plus.zoo import evaluation_wrappers
+    from sb3_trpo_plus.application.zoo import evaluation_wrappers
 
     inherited = list(hyperparameters(variant, env_id).get("env_wrapper") or [])
     if evaluated := evaluation_wrappers(inherited):  # the study's evaluation envs carry no wrapper

@@ -77,7 +77,7 @@ def evaluate_held_out(model: Any, env_id: str, episodes: int, statistics: Any) -
     """(success rate, mean return) of the deterministic policy on ``episodes`` held-out episodes: one batched
     simulation per episode, env ``i`` reset with seed ``EVAL_SEED + i``, each counted at its first episode's end."""
     from grasp_envs import make_batch_env
-    from sb3_trpo_plus.evaluation import frozen_normalization
+    from sb3_trpo_plus.application.evaluation import frozen_normalization
 
     env: Any = make_batch_env(env_id, episodes, seed=EVAL_SEED)
     if statistics is not None:  # the training statistics, frozen; rewards stay the env's
@@ -100,7 +100,7 @@ def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any
     import torch as th
 
     from sb3_trpo_plus import make_model, recipe
-    from sb3_trpo_plus.rollouts import rollout_workers
+    from sb3_trpo_plus.rollouts import RolloutWorkers, rollout_workers
 
     th.set_num_threads(1)
     model = make_model(args.env, algo=algo, seed=seed, sim_threads=args.sim_threads, workers=args.workers, **overrides)
@@ -116,8 +116,8 @@ def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any
     while trained < args.budget:
         start = time.perf_counter()
         model.learn(args.eval_every, reset_num_timesteps=not rows, callback=recorder)
-        if pool is not None:  # a segment ordered during the last update is collected on the training clock
-            pool[0].wait_segments()
+        if pool is not None and isinstance(pool[0], RolloutWorkers):  # a segment ordered during the last update is
+            pool[0].wait_segments()  # collected on the training clock
         trained += time.perf_counter() - start
         start = time.perf_counter()
         success, mean_return = evaluate_held_out(model, args.env, args.eval_episodes, statistics)

@@ -31,11 +31,11 @@ from typing import Any
 import numpy as np
 import torch as th
 
-import sb3_trpo_plus.update as update_module
+import sb3_trpo_plus.algorithm.update as update_module
 from benchmarks.builders import add_run_arguments, algorithm_class, new_model, normalized_training_envs
 from benchmarks.runs import OUT, job_folder
 from benchmarks.study import VARIANTS
-from sb3_trpo_plus.natural_gradient import ConjugateGradientResult, conjugate_gradient
+from sb3_trpo_plus.algorithm.natural_gradient import ConjugateGradientResult, conjugate_gradient
 
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = ("start_gradient_cosine", "start_share", "solution_cosine", "objective_gain")

@@ -187,7 +187,7 @@ def main() -> None:
     if "ray" in args.backends:
         import ray
 
-        from sb3_trpo_plus.ray_cluster import use_loopback_for_local_ray
+        from sb3_trpo_plus.rollouts.ray_cluster import use_loopback_for_local_ray
 
         use_loopback_for_local_ray()  # a Ray of this benchmark only, on 127.0.0.1
         ray.init(num_cpus=os.cpu_count(), include_dashboard=False, log_to_driver=False)

@@ -179,6 +179,7 @@ class BatchVecEnv(VecEnv):
         **options: Any,
     ):
         check_arguments(
+            "BatchVecEnv",
             ARGUMENT_RULES,
             {
                 "env_id": env_id,
@@ -441,6 +442,7 @@ def make_batch_env(
     ``ValueError`` naming the argument and the value.
     """
     check_arguments(
+        "make_batch_env",
         ARGUMENT_RULES,
         {
             "env_id": env_id,

@@ -22,9 +22,8 @@ GRASP_TESTS = ("touch", "between", "per_axis")
 
 MAX_GRIP_SPEED = 0.4  # m/s of the grip site at an action of 1
 
-# Claw servo torque (N m) at which reward_squeeze saturates. Measured with the scripted grasp (10 seeded episodes,
-# median torque while grasped): command 0.42 gives 0.21 N m, 0.5 gives 0.29, 0.7 gives 0.51, 1.0 gives 0.78; the
-# halves first touch the cube at a command of about 0.375.
+# Claw servo torque (N m) at which reward_squeeze saturates: a firm squeeze of the scripted grasp (the torques it
+# measured per closing command are in docs/environments.md, "The squeeze torque").
 SQUEEZE_TORQUE = 0.5
 
 # cube_rotation -> the joint that lets the cube turn: "yaw" about the world's vertical (it stays upright), "free" about

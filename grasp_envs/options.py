@@ -4,8 +4,9 @@ Each task's options are one frozen dataclass (``Reacher2DOptions``, ..., ``Grasp
 are ``ScriptedStartOptions``): a field per option, with its type, its default and its ``Rule`` (``option(default,
 rule)``), every field checked when the dataclass is made, rules that tie options together checked in its
 ``__post_init__``. Other arguments (those of the batched engine) are checked against a table of rules
-(``check_arguments``). Either way a bad value raises ``ValueError("<name> must be <requirement>, got <value>")``, and a
-keyword that is no option ``TypeError`` naming it. Booleans are ``bool`` only; integers are ``int`` (or numpy
+(``check_arguments``). A bad option raises ``ArgumentError("<name> must be <requirement>, got <value>")``, a bad argument
+``ArgumentError("<owner>: `<name>` must be ...")`` (a ``ValueError``), and a keyword that is no option ``TypeError``
+naming it. Booleans are ``bool`` only; integers are ``int`` (or numpy
 integers), never ``bool`` or ``float``; numbers are finite ``int`` or ``float`` (or numpy numbers), never ``bool``.
 """
 
@@ -96,16 +97,25 @@ def path(*, optional: bool = False) -> Rule:
     )
 
 
+class ArgumentError(ValueError):
+    """An argument, or a combination of arguments, that cannot work; the message names each as the caller wrote it."""
+
+
 def check(name: str, value: Any, rule: Rule) -> None:
-    """Raise ``ValueError`` naming ``name`` and ``value`` unless ``rule`` accepts it."""
+    """Raise :class:`ArgumentError` ``"<name> must be <requirement>, got <value>"`` unless ``rule`` accepts ``value``
+    (an option of a task's options dataclass)."""
     if not rule.accepts(value):
-        raise ValueError(f"{name} must be {rule.requirement}, got {value!r}")
+        raise ArgumentError(f"{name} must be {rule.requirement}, got {value!r}")
 
 
-def check_arguments(rules: Mapping[str, Rule], arguments: Mapping[str, Any]) -> None:
-    """``check`` each of ``arguments`` against its rule, in order: the first that breaks its rule raises."""
+def check_arguments(owner: str, rules: Mapping[str, Rule], arguments: Mapping[str, Any]) -> None:
+    """Raise :class:`ArgumentError` naming the first of ``arguments`` that breaks its rule:
+    ``"<owner>: `<name>` must be <requirement>, got <value>"``. The one argument check of ``grasp_envs`` and
+    ``sb3_trpo_plus``."""
     for name, value in arguments.items():
-        check(name, value, rules[name])
+        rule = rules[name]
+        if not rule.accepts(value):
+            raise ArgumentError(f"{owner}: `{name}` must be {rule.requirement}, got {value!r}")
 
 
 def option(default: Any, rule: Rule) -> Any:

@@ -151,9 +151,9 @@ def test_jacobian_columns_are_the_full_jacobians_columns_in_the_same_layout() ->
 @pytest.mark.parametrize(
     ("kwargs", "error", "message"),
     [
-        ({"n_envs": 0}, ValueError, "n_envs must be an integer >= 1"),
-        ({"n_envs": True}, ValueError, "n_envs must be an integer >= 1"),
-        ({"n_envs": 2, "n_threads": -1}, ValueError, "n_threads must be an integer >= 0"),
+        ({"n_envs": 0}, ValueError, "make_batch_env: `n_envs` must be an integer >= 1"),
+        ({"n_envs": True}, ValueError, "make_batch_env: `n_envs` must be an integer >= 1"),
+        ({"n_envs": 2, "n_threads": -1}, ValueError, "make_batch_env: `n_threads` must be an integer >= 0"),
         ({"n_envs": 2, "claw": "magnet"}, ValueError, "claw must be one of"),
         ({"n_envs": 2, "gripper": "x"}, TypeError, "has no option 'gripper'"),
         ({"n_envs": 2, "wrapper_class": gym.wrappers.ClipAction}, ValueError, "runs no per-env Gymnasium wrappers"),

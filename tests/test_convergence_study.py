@@ -284,14 +284,14 @@ def test_the_headline_variant_trains_with_the_pinned_2m_grasper_recipe() -> None
     scripted starts), on an env whose options are the Grasper3D-v7 preset's; the study's Grasper3D-v7 variants start
     from that entry, not from zoo_hyperparams/trpo_plus.yml's."""
     from grasp_envs.registration import PRESETS
-    from sb3_trpo_plus.recipes import _RUN_KEYS  # what make_model keeps from the constructor
+    from sb3_trpo_plus.application.zoo import RUN_KEYS  # what make_model keeps from the constructor
 
     variant, env_id = VARIANTS["warm_scripted25_late_ready_cg25_g098"], "Grasper3D-v6"
     config, entry = study.settings(variant, env_id), study.ENVS["Grasper3D-v7"].zoo["trpo_plus"]
     reuse = study.settings(VARIANTS["recipe_generalized_reuse"], "Grasper3D-v7")
     assert (reuse.n_envs, reuse.kwargs["n_steps"], reuse.kwargs["sample_reuse"]) == (10, 500, "generalized")
     assert variant.algo == "trpo_plus" and builders.algorithm_class(variant.name).__name__ == "TRPOPlus"
-    assert config.kwargs == {key: value for key, value in entry.items() if key not in _RUN_KEYS}
+    assert config.kwargs == {key: value for key, value in entry.items() if key not in RUN_KEYS}
     assert (config.n_envs, config.policy, config.normalize_kwargs) == (entry["n_envs"], entry["policy"], {"gamma": 0.98})
     assert entry["normalize"] is True and entry["gamma"] == 0.98
     assert study.BUDGETS[env_id] == entry["n_timesteps"]
@@ -333,7 +333,7 @@ def test_a_normalize_mapping_reaches_the_training_and_the_evaluation_vecnormaliz
     """A zoo ``normalize: {clip_obs: 5.0, norm_reward: true}`` makes the runner's and the diagnostic scripts'
     training VecNormalize with it; the job's evaluation env, in memory and from the saved statistics, clips the
     observations at 5 and leaves the rewards the env's."""
-    from sb3_trpo_plus.agents import load_normalization
+    from sb3_trpo_plus.application.agents import load_normalization
 
     zoo = study.hyperparameters
     normalize = {"clip_obs": 5.0, "norm_reward": True}
@@ -485,7 +485,7 @@ def test_warm_start_share_against_hand_computed_cg() -> None:
     import torch as th
 
     from benchmarks import warm_start_share
-    from sb3_trpo_plus.natural_gradient import conjugate_gradient
+    from sb3_trpo_plus.algorithm.natural_gradient import conjugate_gradient
 
     def fvp(v: th.Tensor) -> th.Tensor:
         return th.tensor([1.0, 4.0], dtype=th.float64) * v
@@ -508,7 +508,7 @@ def test_warm_start_share_against_hand_computed_cg() -> None:
 
 def test_warm_start_share_measures_every_warm_started_update_and_restores_the_solver() -> None:
     """Three updates of the plain variant with the warm start switched on: the last two are warm-started."""
-    import sb3_trpo_plus.update as update_module
+    import sb3_trpo_plus.algorithm.update as update_module
     from benchmarks import warm_start_share
 
     solver = update_module.conjugate_gradient

@@ -167,7 +167,7 @@ def check_command(command: list[str], monkeypatch: pytest.MonkeyPatch, tmp_path:
         else:
             assert importlib.util.find_spec(module) is not None, f"python -m {module}: no such module"
     elif program == "trpo-plus":
-        from sb3_trpo_plus import cli
+        from sb3_trpo_plus.application import cli
 
         for index, arg in enumerate(args[:-1]):
             if arg in {"-conf", "--conf-file"} and not (ROOT / args[index + 1]).exists():  # the user's own recipe file

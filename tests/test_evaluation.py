@@ -1,4 +1,5 @@
-"""sb3_trpo_plus.evaluation: seeded episodes, fixed VecNormalize statistics, the env's own returns and successes."""
+"""sb3_trpo_plus.application.evaluation: seeded episodes, fixed VecNormalize statistics, the env's own returns and
+successes."""
 
 import os
 import pickle
@@ -12,8 +13,8 @@ from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecNormalize
 
 import grasp_envs  # noqa: F401  (registers the envs)
-from sb3_trpo_plus.agents import RunFileError, load_normalization
-from sb3_trpo_plus.evaluation import evaluate_agent, evaluation_env
+from sb3_trpo_plus.application.agents import RunFileError, load_normalization
+from sb3_trpo_plus.application.evaluation import evaluate_agent, evaluation_env
 
 ENV_ID = "Reacher2D-v1"
 
@@ -176,7 +177,7 @@ def test_one_env_and_at_least_one_episode() -> None:
 def test_statistics_of_another_observation_shape_are_refused(tmp_path: Path, source: str) -> None:
     """Statistics saved for Reacher2D-v1 do not fit Reacher3D-v1's observations: refused when the env is built,
     naming both shapes, whichever form they come in."""
-    from sb3_trpo_plus.normalization import StatisticsMismatchError
+    from sb3_trpo_plus.algorithm.normalization import StatisticsMismatchError
 
     path = tmp_path / "vecnormalize.pkl"
     statistics = _saved_run(path)

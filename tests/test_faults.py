@@ -28,8 +28,9 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
-from sb3_trpo_plus import TRPOPlus, persistence
-from sb3_trpo_plus.agents import (
+from sb3_trpo_plus import TRPOPlus
+from sb3_trpo_plus.algorithm.worker_failures import RolloutWorkerError
+from sb3_trpo_plus.application.agents import (
     RunFileError,
     load_agent,
     load_eval_agent,
@@ -37,8 +38,8 @@ from sb3_trpo_plus.agents import (
     load_policy,
     read_run_config,
 )
-from sb3_trpo_plus.callbacks import SaveOnInterrupt, save_vec_normalize
-from sb3_trpo_plus.worker_failures import RolloutWorkerError
+from sb3_trpo_plus.application.callbacks import SaveOnInterrupt, save_vec_normalize
+from sb3_trpo_plus.common import persistence
 
 ROOT = Path(__file__).resolve().parents[1]
 COMPAT = ROOT / "tests" / "data" / "compat"
@@ -72,7 +73,7 @@ CHILD = textwrap.dedent(
     from stable_baselines3.common.vec_env import VecNormalize
 
     from sb3_trpo_plus import TRPOPlus
-    from sb3_trpo_plus.callbacks import SaveOnInterrupt
+    from sb3_trpo_plus.application.callbacks import SaveOnInterrupt
 
     out = Path(sys.argv[1])
 
@@ -435,7 +436,7 @@ def resume_command(logs: Path, model: Path) -> list[str]:
 def test_damaged_files_of_a_resumed_run_are_named(
     run_folder: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, file: str, how: str
 ) -> None:
-    from sb3_trpo_plus import cli
+    from sb3_trpo_plus.application import cli
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(sys, "argv", list(sys.argv))  # rl-zoo3's train reads its flags from sys.argv
@@ -479,8 +480,8 @@ def test_compat_fixture_is_small() -> None:
 def test_damaged_statistics_of_a_trusted_enjoy_are_named(
     run_folder: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, how: str
 ) -> None:
-    """``trpo-plus enjoy --trust-pickle`` hands the run to rl-zoo3, which unpickles ``vecnormalize.pkl`` itself."""
-    from sb3_trpo_plus import cli
+    """``trpo-plus enjoy --trust-pickle`` unpickles ``vecnormalize.pkl`` with SB3; a damaged one is named."""
+    from sb3_trpo_plus.application import cli
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(sys, "argv", list(sys.argv))
@@ -491,6 +492,3 @@ def test_damaged_statistics_of_a_trusted_enjoy_are_named(
     command = ["enjoy", "--env", "Pendulum-v1", "-f", str(tmp_path / "logs"), "--exp-id", "1", "--no-render", "-n", "5"]
     with pytest.raises(RunFileError, match=rf"{re.escape(str(damaged))}: "):
         cli.main([*command, "--trust-pickle"])
-    import rl_zoo3.utils
-
-    assert rl_zoo3.utils.VecNormalize is VecNormalize  # rl-zoo3 is left as it was

@@ -12,7 +12,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_trpo_plus import TRPOPlus
-from sb3_trpo_plus.generalized import ReuseSettings, generalized_batch, log_prob_of
+from sb3_trpo_plus.algorithm.generalized import ReuseSettings, generalized_batch, log_prob_of
 from sb3_trpo_plus.rollouts import InProcessRollouts
 
 TINY = dict(n_steps=64, batch_size=64, n_critic_updates=3, policy_kwargs={"net_arch": [16]}, device="cpu")

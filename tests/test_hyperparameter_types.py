@@ -15,6 +15,7 @@ import dataclasses
 import inspect
 import multiprocessing as mp
 import pathlib
+import re
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -30,6 +31,8 @@ from grasp_envs import make_batch_env
 from grasp_envs.batch import BatchVecEnv
 from grasp_envs.wrappers import ScriptedStarts
 from sb3_trpo_plus import TRPOPlus
+from sb3_trpo_plus.algorithm.segment import SegmentDictRolloutBuffer, SegmentRolloutBuffer
+from sb3_trpo_plus.algorithm.trpo_plus import HYPERPARAMETER_RULES, validate_hyperparameters
 from sb3_trpo_plus.rollouts import (
     InProcessRollouts,
     ProcessRollouts,
@@ -41,8 +44,6 @@ from sb3_trpo_plus.rollouts import (
     buried_rollout_workers,
     rollout_workers,
 )
-from sb3_trpo_plus.segment import SegmentDictRolloutBuffer, SegmentRolloutBuffer
-from sb3_trpo_plus.trpo_plus import HYPERPARAMETER_RULES, validate_hyperparameters
 
 
 class Row(NamedTuple):
@@ -258,8 +259,10 @@ POOL_TABLE: dict[str, Row] = {
 }
 
 CONSTRUCTORS: dict[str, Constructor] = {
-    "BatchVecEnv": Constructor(BatchVecEnv, {"env_id": "Reacher2D-v1", "n_envs": 1}, BATCH_TABLE, "{} must be "),
-    "make_batch_env": Constructor(make_batch_env, {"env_id": "Reacher2D-v1"}, BATCH_TABLE, "{} must be "),
+    "BatchVecEnv": Constructor(
+        BatchVecEnv, {"env_id": "Reacher2D-v1", "n_envs": 1}, BATCH_TABLE, "BatchVecEnv: `{}` must be "
+    ),
+    "make_batch_env": Constructor(make_batch_env, {"env_id": "Reacher2D-v1"}, BATCH_TABLE, "make_batch_env: `{}` must be "),
     **{
         pool.__name__: Constructor(
             pool,
@@ -395,7 +398,8 @@ def test_invalid_argument_is_named(label: str, name: str, value: Any) -> None:
 
 def test_one_str_is_no_sequence_of_info_keys() -> None:
     """A str is refused where info keys are asked for (it would be recorded as its characters)."""
-    with pytest.raises(ValueError, match="info_keywords must be a list or tuple of str \\(not one str\\), got 'is_success'"):
+    message = "make_batch_env: `info_keywords` must be a list or tuple of str (not one str), got 'is_success'"
+    with pytest.raises(ValueError, match=re.escape(message)):
         make_batch_env("Reacher2D-v1", info_keywords="is_success")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="InProcessRollouts: `info_keywords` must be None or a list or tuple of str"):
         InProcessRollouts("Reacher2D-v1", 1, 1, info_keywords="is_success")  # type: ignore[arg-type]

@@ -10,7 +10,7 @@ from stable_baselines3.common.distributions import kl_divergence
 from stable_baselines3.common.env_util import make_vec_env
 
 from sb3_trpo_plus import TRPOPlus
-from sb3_trpo_plus.natural_gradient import detached_distribution
+from sb3_trpo_plus.algorithm.natural_gradient import detached_distribution
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from multistep import MultiStepTRPOPlus  # benchmarks/multistep.py

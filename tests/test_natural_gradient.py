@@ -8,7 +8,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from torch import nn
 from torch.func import functional_call
 
-from sb3_trpo_plus.natural_gradient import (
+from sb3_trpo_plus.algorithm.natural_gradient import (
     backtracking_line_search,
     conjugate_gradient,
     fisher_vector_product,
@@ -16,7 +16,7 @@ from sb3_trpo_plus.natural_gradient import (
     flat_parameters,
     set_flat_parameters,
 )
-from sb3_trpo_plus.trpo_plus import actor_parameters
+from sb3_trpo_plus.algorithm.trpo_plus import actor_parameters
 
 
 def _spd(n: int, seed: int = 0) -> th.Tensor:
@@ -241,7 +241,7 @@ def test_fisher_sub_sampling_error_is_bounded() -> None:
 def test_detached_distribution_is_the_kl_anchor(action_space: spaces.Space) -> None:
     from stable_baselines3.common.distributions import kl_divergence
 
-    from sb3_trpo_plus.natural_gradient import detached_distribution
+    from sb3_trpo_plus.algorithm.natural_gradient import detached_distribution
 
     policy = ActorCriticPolicy(spaces.Box(-1, 1, (3,)), action_space, lambda _: 1e-3, net_arch=[4])
     obs = th.randn(6, 3)

@@ -15,9 +15,9 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_trpo_plus import TRPOPlus, make_model
-from sb3_trpo_plus.generalized import ReuseSettings, generalized_batch
+from sb3_trpo_plus.algorithm.generalized import ReuseSettings, generalized_batch
+from sb3_trpo_plus.algorithm.segment import Segment
 from sb3_trpo_plus.rollouts import InProcessRollouts, ProcessRollouts
-from sb3_trpo_plus.segment import Segment
 
 TINY = dict(n_steps=32, batch_size=64, n_critic_updates=2, cg_max_steps=5, policy_kwargs={"net_arch": [16]}, device="cpu")
 

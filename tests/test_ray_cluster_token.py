@@ -178,7 +178,7 @@ def test_rayrollouts_without_the_clusters_token_raises_at_once(token_cluster: st
     script = (
         "import time\n"
         "from sb3_trpo_plus.rollouts import RayRollouts\n"
-        "from sb3_trpo_plus.ray_cluster import RayAuthenticationError\n"
+        "from sb3_trpo_plus.rollouts.ray_cluster import RayAuthenticationError\n"
         "start = time.monotonic()\n"
         "try:\n"
         "    RayRollouts('Reacher2D-v1', num_workers=1, envs_per_worker=1)\n"
@@ -209,7 +209,7 @@ def test_rayrollouts_without_the_clusters_token_raises_at_once(token_cluster: st
     ],
 )
 def test_cluster_address_is_what_ray_init_connects_to(monkeypatch, address, ray_address, expected) -> None:
-    from sb3_trpo_plus.ray_cluster import cluster_address
+    from sb3_trpo_plus.rollouts.ray_cluster import cluster_address
 
     if ray_address is None:
         monkeypatch.delenv("RAY_ADDRESS", raising=False)
@@ -219,7 +219,7 @@ def test_cluster_address_is_what_ray_init_connects_to(monkeypatch, address, ray_
 
 
 def test_token_location_follows_rays_order(monkeypatch, tmp_path: Path) -> None:
-    from sb3_trpo_plus.ray_cluster import token_location
+    from sb3_trpo_plus.rollouts.ray_cluster import token_location
 
     token = tmp_path / "token"
     monkeypatch.setenv("RAY_AUTH_TOKEN_PATH", str(token))
@@ -236,7 +236,7 @@ def test_token_location_follows_rays_order(monkeypatch, tmp_path: Path) -> None:
 
 def test_nothing_listening_is_left_to_ray_init(monkeypatch) -> None:
     """No cluster at the address: the check returns at once and ray.init reports the address itself."""
-    from sb3_trpo_plus.ray_cluster import check_cluster_token
+    from sb3_trpo_plus.rollouts.ray_cluster import check_cluster_token
 
     start = time.monotonic()
     check_cluster_token(f"127.0.0.1:{_free_port()}")

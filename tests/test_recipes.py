@@ -12,8 +12,8 @@ import torch as th
 import yaml
 
 from grasp_envs.registration import RECOMMENDED_GRASPER
-from sb3_trpo_plus import cli
-from sb3_trpo_plus.zoo import ALGO_FILES, ZOO_DIR, HyperparameterError, check_wrappers, evaluation_wrappers
+from sb3_trpo_plus.application import cli
+from sb3_trpo_plus.application.zoo import ALGO_FILES, ZOO_DIR, HyperparameterError, check_wrappers, evaluation_wrappers
 
 ROOT = Path(__file__).resolve().parent.parent
 AGENT = ROOT / "trained_agents" / "trpo_plus" / f"{RECOMMENDED_GRASPER}_1"
@@ -28,7 +28,7 @@ def test_recommended_grasper_yaml_is_the_shipped_agents_config() -> None:
     """The shipped agent is the run of the README's command, the YAML's recipe as it stands (agents.json names the
     command): its config.yml and the hyperparameters saved in its model zip (read as plain data, nothing unpickled)
     equal the YAML entry."""
-    from sb3_trpo_plus.agents import read_model_data
+    from sb3_trpo_plus.application.agents import read_model_data
 
     entry = _raw_entry("trpo_plus", RECOMMENDED_GRASPER)
     config = json.loads((AGENT / RECOMMENDED_GRASPER / "config.yml").read_text())
@@ -135,7 +135,7 @@ def test_trpo_plus_train_wraps_training_envs_only(tmp_path: Path, monkeypatch: p
 def test_yaml_text_is_never_evaluated(tmp_path: Path, line: str, message: str) -> None:
     """rl-zoo3 evals the text of ``normalize`` and ``monitor_kwargs`` and calls what ``callback`` names: our loader
     parses the text as literals and accepts callback classes of known packages only."""
-    from sb3_trpo_plus.zoo import load_hyperparameters
+    from sb3_trpo_plus.application.zoo import load_hyperparameters
 
     mark = tmp_path / "pwned"
     path = tmp_path / "bad.yml"
@@ -147,7 +147,7 @@ def test_yaml_text_is_never_evaluated(tmp_path: Path, line: str, message: str) -
 
 
 def test_yaml_dict_text_is_read_as_literals(tmp_path: Path) -> None:
-    from sb3_trpo_plus.zoo import load_hyperparameters
+    from sb3_trpo_plus.application.zoo import load_hyperparameters
 
     path = tmp_path / "ok.yml"
     path.write_text(
@@ -239,7 +239,7 @@ def test_shipped_recommended_agent_is_evaluated_without_training_aids() -> None:
     """The shipped agent's config names the recipe's scripted starts; its evaluation env (the weights-only path of
     ``trpo-plus enjoy``) leaves them out, so its success is measured from the task's own start states."""
     from grasp_envs.wrappers import ScriptedStarts
-    from sb3_trpo_plus.agents import load_eval_agent
+    from sb3_trpo_plus.application.agents import load_eval_agent
 
     _, env = load_eval_agent(AGENT, RECOMMENDED_GRASPER, seed=0)
     try:
@@ -252,7 +252,7 @@ def test_shipped_recommended_agent_is_evaluated_without_training_aids() -> None:
 
 
 def test_recipe_policy_is_an_alias_never_an_import(tmp_path: Path) -> None:
-    from sb3_trpo_plus.zoo import load_hyperparameters
+    from sb3_trpo_plus.application.zoo import load_hyperparameters
 
     path = tmp_path / "bad.yml"
     path.write_text("Reacher2D-v1:\n  n_timesteps: 1000\n  policy: os.system\n")
@@ -266,7 +266,7 @@ def test_recipe_policy_is_an_alias_never_an_import(tmp_path: Path) -> None:
 )
 def test_a_run_config_naming_other_code_is_refused(tmp_path: Path, key: str, value: str) -> None:
     """A downloaded run folder's config.yml names a function where rl-zoo3 expects a wrapper, callback or policy."""
-    from sb3_trpo_plus.agents import RunFileError, validate_run_files
+    from sb3_trpo_plus.application.agents import RunFileError, validate_run_files
 
     run = tmp_path / "trpo_plus" / "Reacher2D-v1_1"
     (run / "Reacher2D-v1").mkdir(parents=True)
@@ -289,7 +289,7 @@ def test_make_model_overrides_run_keys_and_keeps_rl_zoos_discount_and_schedules(
 
 def test_make_model_reads_policy_kwargs_overrides_as_the_yaml() -> None:
     from sb3_trpo_plus import make_model
-    from sb3_trpo_plus.zoo import HyperparameterError
+    from sb3_trpo_plus.application.zoo import HyperparameterError
 
     kwargs = {"net_arch": [8, 8], "activation_fn": "tanh", "log_std_init": -0.5}
     model = make_model("Reacher2D-v1", seed=0, n_envs=1, n_steps=16, batch_size=16, policy_kwargs=kwargs)
@@ -301,3 +301,36 @@ def test_make_model_reads_policy_kwargs_overrides_as_the_yaml() -> None:
         make_model("Reacher2D-v1", n_envs=1, policy_kwargs={"activation_fn": "swish"})
     with pytest.raises(HyperparameterError, match="unknown policy_kwargs key 'net_size'"):
         make_model("Reacher2D-v1", n_envs=1, policy_kwargs={"net_size": 8})
+
+
+def test_a_recipe_is_parsed_once_into_a_typed_record() -> None:
+    """The record's fields are the run keys, its constructor the rest; it reads as the YAML entry; ``lin_<x>`` becomes
+    SB3's ``LinearSchedule`` only where the constructor receives it; overrides re-split."""
+    from stable_baselines3.common.utils import LinearSchedule
+
+    from sb3_trpo_plus import recipe
+    from sb3_trpo_plus.application.zoo import RUN_KEYS, Recipe
+
+    entry = {
+        "n_timesteps": 1000,
+        "policy": "MlpPolicy",
+        "n_envs": 4,
+        "rollout_workers": "process:2",
+        "monitor_kwargs": {"info_keywords": ["is_success"]},
+        "env_wrapper": [{"grasp_envs.wrappers.ScriptedStarts": {"probability": 0.25}}],
+        "learning_rate": "lin_1e-3",
+        "gamma": 0.98,
+    }
+    chosen = Recipe.of("Grasper3D-v7", "trpo_plus", entry)
+    assert (chosen.n_envs, chosen.rollout_workers, chosen.info_keywords) == (4, "process:2", ("is_success",))
+    assert chosen.scripted_starts == {"probability": 0.25}
+    assert chosen.constructor == {"learning_rate": "lin_1e-3", "gamma": 0.98}
+    assert set(RUN_KEYS).isdisjoint(chosen.constructor)
+    assert dict(chosen) == {**entry, "normalize": False}  # n_envs and normalize always, as rl-zoo3 defaults them
+    schedule = chosen.constructor_arguments()["learning_rate"]
+    assert isinstance(schedule, LinearSchedule) and (schedule(1.0), schedule(0.5), schedule(0.0)) == (1e-3, 5e-4, 0.0)
+    moved = chosen.replace(n_envs=2, gamma=0.99, rollout_workers=None)
+    assert (moved.n_envs, moved.rollout_workers, moved.constructor["gamma"]) == (2, None, 0.99)
+    with pytest.raises(ValueError, match=r"per-env wrapper but grasp_envs\.wrappers\.ScriptedStarts"):
+        _ = chosen.replace(env_wrapper="gymnasium.wrappers.ClipAction").scripted_starts
+    assert recipe(RECOMMENDED_GRASPER).rollout_workers == recipe(RECOMMENDED_GRASPER)["rollout_workers"]

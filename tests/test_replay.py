@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from sb3_trpo_plus.baselines import LinearFeatureBaseline
-from sb3_trpo_plus.replay import (
+from sb3_trpo_plus.algorithm.baselines import LinearFeatureBaseline
+from sb3_trpo_plus.algorithm.replay import (
     StoredRollout,
     bootstrap_truncations,
     compute_gae,
@@ -12,7 +12,7 @@ from sb3_trpo_plus.replay import (
     importance_weights,
     recompute_advantages,
 )
-from sb3_trpo_plus.segment import Segment
+from sb3_trpo_plus.algorithm.segment import Segment
 
 TOY_VALUES = np.array([[0.5], [1.0], [1.5], [2.0]], dtype=np.float32)
 

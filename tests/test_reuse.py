@@ -1,4 +1,4 @@
-"""Sample reuse numerics (sb3_trpo_plus.reuse): the batch weights and off-policy GAE."""
+"""Sample reuse numerics (sb3_trpo_plus.algorithm.reuse): the batch weights and off-policy GAE."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import itertools
 import numpy as np
 import pytest
 
-from sb3_trpo_plus.replay import compute_gae
-from sb3_trpo_plus.reuse import reuse_weights, vtrace_gae
+from sb3_trpo_plus.algorithm.replay import compute_gae
+from sb3_trpo_plus.algorithm.reuse import reuse_weights, vtrace_gae
 
 
 def _brute_force(batches: float, max_batches: int) -> np.ndarray:
@@ -130,7 +130,7 @@ def test_an_episode_end_cuts_the_trace() -> None:
 def test_the_generalized_radius_by_hand() -> None:
     """``target_kl * trust_scale**2`` (B = 2: 0.01 / 4), or GeTRPO's eps_vary: ``(sqrt(2 * 0.01) - spent)**2 / 2``,
     and 0 once the spent distance reaches epsilon."""
-    from sb3_trpo_plus.generalized import reuse_radius
+    from sb3_trpo_plus.algorithm.generalized import reuse_radius
 
     assert reuse_radius(0.01, 0.5, spent=0.3, kl_vary=False) == pytest.approx(0.0025, rel=1e-12)
     assert reuse_radius(0.01, 0.5, spent=0.04, kl_vary=True) == pytest.approx((0.1414213562373095 - 0.04) ** 2 / 2, rel=1e-12)

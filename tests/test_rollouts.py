@@ -437,7 +437,7 @@ def test_dict_observations_are_refused_when_the_pool_starts() -> None:
 def test_ctrl_c_while_workers_collect_lets_the_segment_finish_and_saves_a_checkpoint(tmp_path) -> None:
     """SIGINT reaches the learner while it waits for the segments; the process workers ignore it. The segment
     completes, ``learn`` stops before the update, ``SaveOnInterrupt`` saves, and the same pool resumes the run."""
-    from sb3_trpo_plus.callbacks import SaveOnInterrupt
+    from sb3_trpo_plus.application.callbacks import SaveOnInterrupt
 
     pool = ProcessRollouts("Reacher2D-v1", num_workers=2, envs_per_worker=2, seed=0)
     try:

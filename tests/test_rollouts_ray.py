@@ -109,7 +109,7 @@ def test_a_worker_that_cannot_be_placed_is_named() -> None:
 
 
 def test_the_train_command_collects_with_ray_workers(tmp_path, monkeypatch) -> None:
-    from sb3_trpo_plus import cli
+    from sb3_trpo_plus.application import cli
 
     monkeypatch.chdir(tmp_path)
     cli.main(

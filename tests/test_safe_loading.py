@@ -9,7 +9,6 @@ import os
 import pickle
 import re
 import shutil
-import sys
 import zipfile
 from collections import OrderedDict
 from pathlib import Path
@@ -23,8 +22,9 @@ import yaml
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sb3_trpo_plus import TRPOPlus, cli, run_folders
-from sb3_trpo_plus.agents import (
+from sb3_trpo_plus import TRPOPlus
+from sb3_trpo_plus.application import cli, run_folders
+from sb3_trpo_plus.application.agents import (
     RunFileError,
     load_agent,
     load_eval_agent,
@@ -33,7 +33,7 @@ from sb3_trpo_plus.agents import (
     load_run_yaml,
     read_run_config,
 )
-from sb3_trpo_plus.callbacks import save_vec_normalize
+from sb3_trpo_plus.application.callbacks import save_vec_normalize
 
 TRAINED = run_folders.TRAINED_AGENTS / "trpo_plus"
 
@@ -130,7 +130,7 @@ def test_enjoy_and_record_video_refuse_code_in_yaml(run: Path, marker: Path) -> 
         with pytest.raises(RunFileError, match=r"args\.yml: refused"):
             command(argv)
     with pytest.raises(RunFileError, match=r"args\.yml: refused"):
-        cli.enjoy([*base, "--trust-pickle"])  # checked before rl-zoo3 reads it with yaml.UnsafeLoader
+        cli.enjoy([*base, "--trust-pickle"])  # read as data on the trusted path too
     assert not marker.exists()
 
 
@@ -147,7 +147,6 @@ CODE_STRINGS_IN_RUN = [
 def test_enjoy_and_record_video_refuse_code_strings(
     run: Path, marker: Path, monkeypatch: pytest.MonkeyPatch, file: str, key: str, trust_pickle: bool
 ) -> None:
-    monkeypatch.setattr(sys, "argv", list(sys.argv))  # rl-zoo3's enjoy reads its flags from sys.argv
     path = run / "Pendulum-v1" / file
     code = CODE_STRINGS.get(key, "__import__('os').system('touch {marker}')").format(marker=marker)
     if file == "config.yml":
@@ -171,14 +170,14 @@ DOWNLOADED_CODE = {
 
 
 @pytest.mark.parametrize("case", sorted(DOWNLOADED_CODE))
-def test_enjoy_checks_a_run_downloaded_from_the_hub_before_rl_zoo3_reads_it(
+def test_enjoy_reads_a_run_downloaded_from_the_hub_as_data(
     run: Path, marker: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, case: str
 ) -> None:
-    """rl-zoo3's enjoy downloads a run it does not find under an ``rl-trained-agents`` folder; the downloaded YAML
-    is checked before rl-zoo3 reads it with ``yaml.UnsafeLoader`` and evaluates ``normalize``."""
-    import rl_zoo3.enjoy
+    """As rl-zoo3's enjoy, a run not found under an ``rl-trained-agents`` folder is downloaded from the hub; its YAML
+    is then read as data, even with ``--trust-pickle`` (rl-zoo3 would read it with ``yaml.UnsafeLoader`` and evaluate
+    ``normalize``)."""
+    import rl_zoo3.load_from_hub
 
-    monkeypatch.setattr(sys, "argv", list(sys.argv))
     file, text = DOWNLOADED_CODE[case]
     folder = tmp_path / "rl-trained-agents"
     downloaded: list[Path] = []
@@ -189,7 +188,7 @@ def test_enjoy_checks_a_run_downloaded_from_the_hub_before_rl_zoo3_reads_it(
         (target / "Pendulum-v1" / file).write_text(text.format(marker=marker))
         downloaded.append(target)
 
-    monkeypatch.setattr(rl_zoo3.enjoy, "download_from_hub", download_from_hub)
+    monkeypatch.setattr(rl_zoo3.load_from_hub, "download_from_hub", download_from_hub)
     path = folder / "trpo_plus" / "Pendulum-v1_1" / "Pendulum-v1" / file
     with pytest.raises(RunFileError, match=rf"{re.escape(str(path))}: .*refused"):
         cli.enjoy(["--env", "Pendulum-v1", "-f", str(folder), "--trust-pickle", "-n", "5", "--no-render"])

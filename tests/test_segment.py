@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -11,8 +13,22 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from sb3_trpo_plus import TRPOPlus
-from sb3_trpo_plus.normalization import NormalizationStats
-from sb3_trpo_plus.segment import LoopState, Segment, SegmentRolloutBuffer, StepLocals, collect_segment, sampling_forward
+from sb3_trpo_plus.algorithm.normalization import NormalizationStats
+from sb3_trpo_plus.algorithm.segment import (
+    LoopState,
+    Segment,
+    SegmentRolloutBuffer,
+    StepLocals,
+    collect_segment,
+    sampling_forward,
+)
+
+
+def after_reset(observation: Any, raw_observation: Any = None) -> LoopState:
+    """The loop's state right after a reset: every env starts an episode at step 0."""
+    n_envs = len(next(iter(observation.values())) if isinstance(observation, dict) else observation)
+    raw = observation if raw_observation is None else raw_observation
+    return LoopState(observation, raw, np.ones(n_envs, dtype=bool), np.zeros(n_envs, dtype=np.int64))
 
 
 def _pendulum(n_envs: int = 2, max_episode_steps: int = 15) -> VecNormalize:
@@ -30,7 +46,7 @@ def test_the_segment_records_what_the_env_and_vec_normalize_gave() -> None:
     env = _pendulum()
     policy = _policy(env)
     obs = env.reset()
-    state = LoopState.after_reset(obs, env.get_original_obs())
+    state = after_reset(obs, env.get_original_obs())
     raw_seen, rewards_seen = [env.get_original_obs()], []
     steps = []
 
@@ -66,7 +82,7 @@ def test_the_segment_records_what_the_env_and_vec_normalize_gave() -> None:
 def test_a_step_that_returns_false_stops_the_loop() -> None:
     env = _pendulum()
     policy = _policy(env)
-    state = LoopState.after_reset(env.reset(), env.get_original_obs())
+    state = after_reset(env.reset(), env.get_original_obs())
     calls = []
 
     def stop_at_third(step: StepLocals) -> bool:
@@ -81,7 +97,7 @@ def test_a_step_that_returns_false_stops_the_loop() -> None:
 def test_a_normalizer_with_a_vec_normalize_env_is_refused() -> None:
     env = _pendulum()
     normalizer = NormalizationStats.of(env)
-    state = LoopState.after_reset(env.reset())
+    state = after_reset(env.reset())
     with pytest.raises(ValueError, match="normalises itself"):
         collect_segment(_policy(env), env, 2, state, gamma=0.9, normalizer=normalizer)
     env.close()
@@ -102,7 +118,7 @@ def test_a_frozen_normalizer_on_a_bare_env_gives_what_the_vec_normalize_would() 
         env.seed(11)  # the same episodes in both
         raw = env.reset() if normalizer is not None else None
         obs = normalizer.normalize_obs(raw) if normalizer is not None else env.reset()
-        state = LoopState.after_reset(obs, raw if raw is not None else env.get_original_obs())
+        state = after_reset(obs, raw if raw is not None else env.get_original_obs())
         th.manual_seed(0)
         segments.append(collect_segment(policy, env, 20, state, gamma=0.9, normalizer=normalizer))
     a, b = segments
@@ -118,7 +134,7 @@ def test_concatenated_segments_name_their_envs_by_pool_position() -> None:
     policy = _policy(env)
     parts = []
     for _ in range(2):
-        state = LoopState.after_reset(env.reset(), env.get_original_obs())
+        state = after_reset(env.reset(), env.get_original_obs())
         part = collect_segment(policy, env, 16, state, gamma=0.9)
         assert part is not None
         parts.append(part)

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from sb3_trpo_plus.evaluation import evaluate_agent
-from sb3_trpo_plus.run_folders import TRAINED_AGENTS, load_trained
+from sb3_trpo_plus.application.evaluation import evaluate_agent
+from sb3_trpo_plus.application.run_folders import TRAINED_AGENTS, load_trained
 
 ROOT = Path(__file__).resolve().parents[1]
 MANIFEST = json.loads((TRAINED_AGENTS / "agents.json").read_text()) if (TRAINED_AGENTS / "agents.json").exists() else {}
@@ -39,7 +39,7 @@ def test_trained_agent_reaches_its_documented_success_rate(env_id: str) -> None:
 
 @pytest.mark.parametrize("env_id", sorted(MANIFEST)[:1])
 def test_enjoy_finds_the_shipped_agent_without_a_folder(env_id: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from sb3_trpo_plus.run_folders import default_folder
+    from sb3_trpo_plus.application.run_folders import default_folder
 
     monkeypatch.chdir(tmp_path)  # no ./logs here
     assert default_folder("trpo_plus", env_id) == str(TRAINED_AGENTS)

@@ -14,8 +14,8 @@ from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
 from sb3_trpo_plus import TRPOPlus
-from sb3_trpo_plus.baselines import LinearFeatureBaseline
-from sb3_trpo_plus.update import surrogate_advantages
+from sb3_trpo_plus.algorithm.baselines import LinearFeatureBaseline
+from sb3_trpo_plus.algorithm.update import surrogate_advantages
 
 TINY = dict(n_steps=64, batch_size=64, n_critic_updates=2, cg_max_steps=5, policy_kwargs=dict(net_arch=[16]))
 
@@ -151,7 +151,7 @@ def test_callbacks_progress_bar_and_tensorboard(tmp_path: pathlib.Path) -> None:
 def test_episode_stats_records_every_finished_training_episode() -> None:
     """``EpisodeStats``: (return, success, length) of each episode the Monitor closes, as the Monitor counts them."""
     import grasp_envs  # noqa: F401  (registers the envs)
-    from sb3_trpo_plus.callbacks import EpisodeStats
+    from sb3_trpo_plus.application.callbacks import EpisodeStats
 
     env = make_vec_env("Reacher2D-v1", n_envs=2, seed=0)  # 50-step episodes
     stats = EpisodeStats()

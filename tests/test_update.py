@@ -1,4 +1,4 @@
-"""The public policy update (sb3_trpo_plus.update): the surrogate's advantages and one natural-gradient step."""
+"""The public policy update (sb3_trpo_plus.algorithm.update): the surrogate's advantages and one natural-gradient step."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import torch as th
 from stable_baselines3.common.distributions import kl_divergence
 
 from sb3_trpo_plus import TRPOPlus
-from sb3_trpo_plus.natural_gradient import detached_distribution
-from sb3_trpo_plus.update import (
+from sb3_trpo_plus.algorithm.natural_gradient import detached_distribution
+from sb3_trpo_plus.algorithm.update import (
     NaturalGradientSettings,
     PolicyBatch,
     natural_gradient_step,

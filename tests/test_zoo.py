@@ -15,9 +15,10 @@ from rl_zoo3.utils import get_wrapper_class
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sb3_trpo_plus import cli, make_model
-from sb3_trpo_plus.run_folders import load_trained
-from sb3_trpo_plus.zoo import ALGO_FILES, ZOO_DIR, HyperparameterError, algorithms, load_hyperparameters
+from sb3_trpo_plus import make_model
+from sb3_trpo_plus.application import cli
+from sb3_trpo_plus.application.run_folders import load_trained
+from sb3_trpo_plus.application.zoo import ALGO_FILES, ZOO_DIR, HyperparameterError, algorithms, load_hyperparameters
 
 ROOT = Path(__file__).resolve().parent.parent
 ENTRIES = [(algo, env_id) for algo, f in ALGO_FILES.items() for env_id in load_hyperparameters(ZOO_DIR / f, algo)]
@@ -357,8 +358,8 @@ def test_the_tasks_of_grasp_envs_train_on_the_batched_engine_by_default(argv, ex
     --vec-env says otherwise, rl-zoo3's own VecEnv for any other id."""
     import rl_zoo3.train
 
-    from sb3_trpo_plus.experiment import TRPOPlusExperimentManager
-    from sb3_trpo_plus.zoo import batch_training_env
+    from sb3_trpo_plus.application.experiment import TRPOPlusExperimentManager
+    from sb3_trpo_plus.application.zoo import batch_training_env
 
     seen: dict[str, object] = {}
 

@@ -25,6 +25,9 @@ During a segment the observations and rewards are normalised with the statistics
 updates them after every step); the statistics see every raw observation and reward of the segment afterwards.
 """
 
+from sb3_trpo_plus.algorithm.segment import Segment
+from sb3_trpo_plus.algorithm.segment_pool import SegmentPool, buried_rollout_workers, rollout_workers
+from sb3_trpo_plus.algorithm.worker_failures import RolloutWorkerError
 from sb3_trpo_plus.rollouts.backends import RemoteTraceback
 from sb3_trpo_plus.rollouts.pool import (
     POOLS,
@@ -32,14 +35,10 @@ from sb3_trpo_plus.rollouts.pool import (
     ProcessRollouts,
     RayRollouts,
     RolloutWorkers,
-    buried_rollout_workers,
-    rollout_workers,
     split_pool,
 )
 from sb3_trpo_plus.rollouts.rules import POOL_ARGUMENT_RULES, WORKER_ENVS_RULES
 from sb3_trpo_plus.rollouts.worker import WORKER_ARGUMENT_RULES, RolloutWorker, SegmentOrder, WorkerEnvs
-from sb3_trpo_plus.segment import Segment
-from sb3_trpo_plus.worker_failures import RolloutWorkerError
 
 __all__ = [
     "POOLS",
@@ -55,6 +54,7 @@ __all__ = [
     "RolloutWorkers",
     "Segment",
     "SegmentOrder",
+    "SegmentPool",
     "WorkerEnvs",
     "buried_rollout_workers",
     "rollout_workers",

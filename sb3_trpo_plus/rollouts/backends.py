@@ -13,8 +13,8 @@ from typing import Any
 
 import torch as th
 
+from sb3_trpo_plus.algorithm.worker_failures import RolloutWorkerError, death_cause
 from sb3_trpo_plus.rollouts.worker import RolloutWorker, WorkerEnvs
-from sb3_trpo_plus.worker_failures import RolloutWorkerError, death_cause
 
 
 class _WorkerDied(Exception):

@@ -18,12 +18,13 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.monitor import ResultsWriter
 from stable_baselines3.common.policies import ActorCriticPolicy
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
-from sb3_trpo_plus.arguments import Rule, check_arguments
-from sb3_trpo_plus.normalization import NormalizationStats
-from sb3_trpo_plus.ray_cluster import check_cluster_token, use_loopback_for_local_ray
+from sb3_trpo_plus.algorithm.normalization import NormalizationStats
+from sb3_trpo_plus.algorithm.segment import Segment
+from sb3_trpo_plus.algorithm.segment_pool import SegmentPool
+from sb3_trpo_plus.algorithm.worker_failures import RolloutWorkerError
+from sb3_trpo_plus.common.arguments import check_arguments
 from sb3_trpo_plus.rollouts.backends import (
     RemoteTraceback,
     _Backend,
@@ -32,13 +33,12 @@ from sb3_trpo_plus.rollouts.backends import (
     _RayBackend,
     _WorkerDied,
 )
+from sb3_trpo_plus.rollouts.ray_cluster import check_cluster_token, use_loopback_for_local_ray
 from sb3_trpo_plus.rollouts.rules import POOL_ARGUMENT_RULES
 from sb3_trpo_plus.rollouts.worker import SegmentOrder, WorkerEnvs
-from sb3_trpo_plus.segment import Segment
-from sb3_trpo_plus.worker_failures import RolloutWorkerError
 
 
-class RolloutWorkers(VecEnv):
+class RolloutWorkers(SegmentPool):
     """``num_workers`` workers with ``envs_per_worker`` envs of ``env_id`` each: one SB3 ``VecEnv`` of
     ``num_workers * envs_per_worker`` envs (worker ``w`` steps envs ``w * envs_per_worker`` to
     ``(w + 1) * envs_per_worker - 1``). Use a subclass: :class:`InProcessRollouts`, :class:`ProcessRollouts`,
@@ -95,7 +95,7 @@ class RolloutWorkers(VecEnv):
                 "max_restarts": max_restarts,
             },
         )
-        from sb3_trpo_plus.engines import has_batch_engine
+        from sb3_trpo_plus.rollouts.engines import has_batch_engine
 
         if info_keywords is None:
             info_keywords = ("is_success",) if has_batch_engine(env_id) else ()
@@ -497,7 +497,7 @@ class RayRollouts(RolloutWorkers):
     is none, starts a local Ray instance that listens on 127.0.0.1 only (unless ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER``
     is set); Ray already initialised in the process (``ray.init(...)``) is used as it is. Ray is imported and started
     once every argument is checked. A cluster that requires token authentication (``RAY_AUTH_MODE=token`` on its
-    nodes) and refuses this process' token raises :class:`~sb3_trpo_plus.ray_cluster.RayAuthenticationError` at once,
+    nodes) and refuses this process' token raises :class:`~sb3_trpo_plus.rollouts.ray_cluster.RayAuthenticationError` at once,
     naming what to set (docs: "Securing the cluster").
 
     :param cpus_per_worker: CPUs each actor reserves (Ray places a worker on a node with that many free)
@@ -596,26 +596,3 @@ class _MonitorWriter:
 
     def close(self) -> None:
         self.writer.close()
-
-
-POOL_LOOKUP_RULES: dict[str, Rule] = {"env": Rule(lambda value: isinstance(value, VecEnv), "a VecEnv")}
-"""The argument of :func:`rollout_workers` and :func:`buried_rollout_workers`."""
-
-
-def buried_rollout_workers(env: VecEnv) -> bool:
-    """Whether a :class:`RolloutWorkers` pool lies under ``env``'s wrappers where :func:`rollout_workers` does not
-    find it (under wrappers other than one ``VecNormalize``)."""
-    check_arguments("buried_rollout_workers", POOL_LOOKUP_RULES, {"env": env})
-    while isinstance(env, VecEnvWrapper):
-        env = env.venv
-    return isinstance(env, RolloutWorkers)
-
-
-def rollout_workers(env: VecEnv) -> tuple[RolloutWorkers, VecNormalize | None] | None:
-    """``(pool, vec_normalize)`` when ``env`` is a :class:`RolloutWorkers` pool, bare or under one ``VecNormalize``."""
-    check_arguments("rollout_workers", POOL_LOOKUP_RULES, {"env": env})
-    if isinstance(env, RolloutWorkers):
-        return env, None
-    if isinstance(env, VecNormalize) and isinstance(env.venv, RolloutWorkers):
-        return env.venv, env
-    return None

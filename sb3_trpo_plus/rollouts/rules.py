@@ -5,7 +5,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 
-from sb3_trpo_plus.arguments import Rule, choice, integer, keywords, names, number, optional
+from sb3_trpo_plus.common.arguments import Rule, choice, integer, keywords, names, number, optional
 
 POOL_ARGUMENT_RULES: dict[str, Rule] = {
     "env_id": Rule(lambda value: isinstance(value, str), "a registered Gymnasium id (str)"),

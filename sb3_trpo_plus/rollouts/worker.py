@@ -1,4 +1,5 @@
-"""A rollout worker: a group of envs and a policy copy that collects segments (:func:`~sb3_trpo_plus.segment.collect_segment`).
+"""A rollout worker: a group of envs and a policy copy that collects segments
+(:func:`~sb3_trpo_plus.algorithm.segment.collect_segment`).
 
 :class:`WorkerEnvs` says how it builds its envs and :class:`SegmentOrder` is what the learner sends it per iteration;
 both are plain data that travel to worker processes and Ray nodes.
@@ -21,10 +22,10 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
-from sb3_trpo_plus.arguments import Rule, check_arguments, integer
-from sb3_trpo_plus.normalization import NormalizationStats
+from sb3_trpo_plus.algorithm.normalization import NormalizationStats
+from sb3_trpo_plus.algorithm.segment import LoopState, Segment, collect_segment
+from sb3_trpo_plus.common.arguments import Rule, check_arguments, integer
 from sb3_trpo_plus.rollouts.rules import WORKER_ENVS_RULES
-from sb3_trpo_plus.segment import LoopState, Segment, collect_segment
 
 WORKER_ARGUMENT_RULES: dict[str, Rule] = {
     "index": integer(0),
@@ -58,7 +59,7 @@ class WorkerEnvs:
         object.__setattr__(self, "info_keywords", tuple(self.info_keywords))  # a list is stored as a tuple
 
     def build(self) -> VecEnv:
-        from sb3_trpo_plus import engines
+        from sb3_trpo_plus.rollouts import engines
 
         if engines.has_batch_engine(self.env_id):
             return engines.batch_envs(

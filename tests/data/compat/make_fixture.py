@@ -19,7 +19,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 import sb3_trpo_plus
 from sb3_trpo_plus import TRPOPlus
-from sb3_trpo_plus.callbacks import save_vec_normalize
+from sb3_trpo_plus.application.callbacks import save_vec_normalize
 
 HERE = Path(__file__).resolve().parent
 

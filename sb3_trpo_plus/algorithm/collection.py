@@ -14,16 +14,21 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from sb3_trpo_plus.normalization import NormalizationStats
-from sb3_trpo_plus.rollouts import RolloutWorkers, buried_rollout_workers, rollout_workers
-from sb3_trpo_plus.rollouts.steps import record_worker_timings, step_through_segment
-from sb3_trpo_plus.segment import (
+from sb3_trpo_plus.algorithm.normalization import NormalizationStats
+from sb3_trpo_plus.algorithm.segment import (
     LoopState,
     Segment,
     SegmentDictRolloutBuffer,
     SegmentRolloutBuffer,
     StepLocals,
     collect_segment,
+)
+from sb3_trpo_plus.algorithm.segment_pool import (
+    SegmentPool,
+    buried_rollout_workers,
+    record_worker_timings,
+    rollout_workers,
+    step_through_segment,
 )
 
 if TYPE_CHECKING:
@@ -50,7 +55,7 @@ class SegmentCollection(_Algorithm):
         rollout_buffer: RolloutBuffer,
         n_rollout_steps: int,
     ) -> bool:
-        """SB3's ``collect_rollouts``: one segment collected (:func:`~sb3_trpo_plus.segment.collect_segment`), the
+        """SB3's ``collect_rollouts``: one segment collected (:func:`~sb3_trpo_plus.algorithm.segment.collect_segment`), the
         callback's ``on_step`` fired at every step with SB3's locals, the rollout buffer filled from the segment
         (which it keeps for the update and the replay memory).
 
@@ -135,12 +140,12 @@ class SegmentCollection(_Algorithm):
         )
 
     def _segment_from_workers(
-        self, pool: RolloutWorkers, vec_normalize: VecNormalize | None, callback: BaseCallback, n_rollout_steps: int
+        self, pool: SegmentPool, vec_normalize: VecNormalize | None, callback: BaseCallback, n_rollout_steps: int
     ) -> Segment | None:
         """Every worker collects ``n_rollout_steps`` steps with the current weights (or the segment ordered during the
         last update arrives); then its steps go to the ``VecNormalize`` statistics, the callback (SB3's locals; its
         ``on_step`` fires once per step) and the episode statistics, as SB3's ``collect_rollouts`` would have sent them
-        (:func:`~sb3_trpo_plus.rollouts.steps.step_through_segment`). None: the callback stopped training.
+        (:func:`~sb3_trpo_plus.algorithm.segment_pool.step_through_segment`). None: the callback stopped training.
         """
         if self.overlap_collection and pool.collecting:  # ordered before the last update
             segments = pool.gather_segments()

@@ -6,6 +6,10 @@ rollout worker (``sb3_trpo_plus.rollouts``, in-process, in a process or on Ray);
 (:class:`SegmentRolloutBuffer`) and is what the replay memory keeps. The loop is SB3's ``collect_rollouts``: the
 same draws from the policy, action clipping or unscaling, time-limit truncations bootstrapped with the value of
 the terminal observation, the value of the last observation; with gSDE, the same noise resets.
+
+It is a fork of SB3 2.9.2's ``OnPolicyAlgorithm.collect_rollouts`` (``stable_baselines3/common/on_policy_algorithm.py``,
+lines 162-269), reshaped to return the whole segment; :data:`FORKED_FROM` pins that source, and
+``tests/test_sb3_fork.py`` runs both on the installed SB3 (same buffer, same callback calls).
 """
 
 from __future__ import annotations
@@ -27,7 +31,14 @@ from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.common.utils import obs_as_tensor
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
-from sb3_trpo_plus.normalization import NormalizationStats
+from sb3_trpo_plus.algorithm.normalization import NormalizationStats
+
+FORKED_FROM = (
+    "2.9.2",
+    "stable_baselines3.common.on_policy_algorithm.OnPolicyAlgorithm.collect_rollouts",
+    "07f9eed35d9d7392f6ce287dc9d55aede83d8b0f93d34cb5d643410cdf11e3b7",
+)
+"""The SB3 version and function :func:`collect_segment` follows, and the SHA-256 of that function's source."""
 
 Observation = np.ndarray | dict[str, np.ndarray]
 
@@ -272,12 +283,6 @@ class LoopState:
     raw_observation: Observation
     episode_starts: np.ndarray
     episode_timesteps: np.ndarray
-
-    @classmethod
-    def after_reset(cls, observation: Observation, raw_observation: Observation | None = None) -> LoopState:
-        n_envs = len(next(iter(observation.values())) if isinstance(observation, dict) else observation)
-        raw = observation if raw_observation is None else raw_observation
-        return cls(observation, raw, np.ones(n_envs, dtype=bool), np.zeros(n_envs, dtype=np.int64))
 
 
 @dataclass(frozen=True)

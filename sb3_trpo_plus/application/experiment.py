@@ -1,27 +1,23 @@
 """``trpo-plus train`` as an rl-zoo3 experiment: one :class:`ExperimentManager` subclass holds everything the command
-adds to rl-zoo3's training, and :func:`zoo_train` runs rl-zoo3's own ``train`` with it.
+adds to rl-zoo3's training (:func:`sb3_trpo_plus.application.rl_zoo.train` runs rl-zoo3's own ``train`` with it).
 
 What the subclass adds, each as an override of the rl-zoo3 method it concerns:
 
 - ``create_envs``: the training envs come from a ``make_vec_env``-like factory where one is given (the batched
-  engine, a pool of rollout workers: :mod:`sb3_trpo_plus.zoo`; a recipe's ``rollout_workers`` chooses the pool
+  engine, a pool of rollout workers: :mod:`sb3_trpo_plus.application.zoo`; a recipe's ``rollout_workers`` chooses the pool
   unless the command line chose); evaluation envs get the YAML's ``env_wrapper`` without its training aids
-  (:func:`sb3_trpo_plus.zoo.evaluation_wrappers`);
+  (:func:`sb3_trpo_plus.application.zoo.evaluation_wrappers`);
 - ``learn``: TensorBoard runs under ``<tensorboard-log>/<env>/seed<seed>/<Algorithm>_<n>``, and Ctrl-C stops at the
   next env step (not inside an update) so that the model is saved in the state of its last complete update;
 - ``save_trained_model``: the VecNormalize statistics are written atomically;
 - ``_maybe_normalize`` / ``_load_pretrained_agent``: resuming from a damaged ``<ENV>.zip`` or ``vecnormalize.pkl``
-  raises :class:`~sb3_trpo_plus.agents.RunFileError` naming the file.
+  raises :class:`~sb3_trpo_plus.application.agents.RunFileError` naming the file.
 """
 
 from __future__ import annotations
 
-import argparse
-import contextlib
 import os
-import sys
-import types
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from rl_zoo3.exp_manager import ExperimentManager
@@ -61,7 +57,7 @@ class TRPOPlusExperimentManager(ExperimentManager):
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]) -> Any:
         from rl_zoo3.utils import get_wrapper_class
 
-        from sb3_trpo_plus.zoo import evaluation_wrappers
+        from sb3_trpo_plus.application.zoo import evaluation_wrappers
 
         workers = hyperparams.pop("rollout_workers", None)  # ours, not the constructor's
         if workers is not None:
@@ -106,7 +102,7 @@ class TRPOPlusExperimentManager(ExperimentManager):
         return build
 
     def learn(self, model: Any) -> None:
-        from sb3_trpo_plus.callbacks import StopTrainingOnInterrupt
+        from sb3_trpo_plus.application.callbacks import StopTrainingOnInterrupt
 
         if model.tensorboard_log:  # a plain string attribute: the model stays picklable for checkpoints
             model.tensorboard_log = os.path.join(model.tensorboard_log, f"seed{self.seed}")
@@ -120,7 +116,7 @@ class TRPOPlusExperimentManager(ExperimentManager):
             print("trpo-plus train: interrupted, saving the model, its replay memory and the VecNormalize statistics")
 
     def save_trained_model(self, model: Any) -> None:
-        from sb3_trpo_plus.callbacks import save_vec_normalize
+        from sb3_trpo_plus.application.callbacks import save_vec_normalize
 
         normalize, self.normalize = self.normalize, False
         try:
@@ -131,7 +127,7 @@ class TRPOPlusExperimentManager(ExperimentManager):
             save_vec_normalize(model.get_vec_normalize_env(), os.path.join(self.params_path, "vecnormalize.pkl"))
 
     def _maybe_normalize(self, env: Any, eval_env: bool) -> Any:
-        from sb3_trpo_plus.agents import load_trusted_file
+        from sb3_trpo_plus.application.agents import load_trusted_file
 
         path = os.path.join(os.path.dirname(self.trained_agent), self.env_name, "vecnormalize.pkl")  # rl-zoo3's choice
         if not os.path.exists(path):
@@ -139,78 +135,8 @@ class TRPOPlusExperimentManager(ExperimentManager):
         return load_trusted_file(lambda: super(TRPOPlusExperimentManager, self)._maybe_normalize(env, eval_env), path)
 
     def _load_pretrained_agent(self, hyperparams: dict[str, Any], env: Any) -> Any:
-        from sb3_trpo_plus.agents import load_trusted_file
+        from sb3_trpo_plus.application.agents import load_trusted_file
 
         return load_trusted_file(
             lambda: super(TRPOPlusExperimentManager, self)._load_pretrained_agent(hyperparams, env), self.trained_agent
         )
-
-
-@contextlib.contextmanager
-def zoo_command_line(argv: Sequence[str]) -> Iterator[None]:
-    """rl-zoo3's scripts (``train``, ``enjoy``) read their flags from ``sys.argv``, as its own ``rl_zoo3`` command
-    hands them over: ``argv`` is the command line for the duration of one call, then the caller's again."""
-    saved = sys.argv
-    sys.argv = [saved[0] if saved else "trpo-plus", *argv]
-    try:
-        yield
-    finally:
-        sys.argv = saved
-
-
-@contextlib.contextmanager
-def _zoo_manager(manager: type[ExperimentManager]) -> Iterator[None]:
-    """rl-zoo3's ``train()`` builds the class named ``ExperimentManager`` in its module: ``manager``, for one call."""
-    import rl_zoo3.train as zoo_train_module
-
-    saved = zoo_train_module.ExperimentManager
-    zoo_train_module.ExperimentManager = manager  # type: ignore[misc]
-    try:
-        yield
-    finally:
-        zoo_train_module.ExperimentManager = saved  # type: ignore[misc]
-
-
-@contextlib.contextmanager
-def zoo_parser(module: types.ModuleType, prog: str) -> Iterator[None]:
-    """rl-zoo3's script in ``module`` parses its flags with ``argparse.ArgumentParser()``: for one call, a parser named
-    ``prog`` whose errors (a flag it does not know, a bad value) are one line
-    (:class:`~sb3_trpo_plus.arguments.CommandLineParser`)."""
-    from sb3_trpo_plus.arguments import CommandLineParser
-
-    class ZooParser(CommandLineParser):
-        def __init__(self, *args: Any, **kwargs: Any) -> None:
-            kwargs.setdefault("prog", prog)
-            super().__init__(*args, **kwargs)
-
-        def parse_known_args(self, *args: Any, **kwargs: Any) -> Any:
-            try:
-                return super().parse_known_args(*args, **kwargs)
-            except (NameError, SyntaxError) as error:  # rl-zoo3 evaluates the VALUE of KEY:VALUE flags as Python
-                self.error(
-                    f"the VALUE of each KEY:VALUE (-params/--hyperparams, --env-kwargs) is Python, {error} (a string "
-                    "is quoted: KEY:\"'text'\")"
-                )
-
-    one_line = types.ModuleType(argparse.__name__)
-    one_line.__dict__.update(vars(argparse))
-    one_line.ArgumentParser = ZooParser  # type: ignore[attr-defined]
-    saved = module.__dict__["argparse"]
-    module.__dict__["argparse"] = one_line
-    try:
-        yield
-    finally:
-        module.__dict__["argparse"] = saved
-
-
-def zoo_train(
-    argv: Sequence[str], training_envs: TrainingEnvs | None = None, recipe_workers: RecipeWorkers | None = None
-) -> None:
-    """rl-zoo3's ``train`` with ``argv`` (rl-zoo3's flags) and :class:`TRPOPlusExperimentManager`, the training envs
-    built by ``training_envs`` where given, or by ``recipe_workers`` where the recipe has ``rollout_workers``. A flag
-    rl-zoo3 does not know, or a bad value of one, stops it with one line (``trpo-plus train: error: ...``)."""
-    import rl_zoo3.train as zoo_train_module
-
-    manager = TRPOPlusExperimentManager.with_training_envs(training_envs, recipe_workers)
-    with zoo_command_line(argv), _zoo_manager(manager), zoo_parser(zoo_train_module, "trpo-plus train"):
-        zoo_train_module.train()

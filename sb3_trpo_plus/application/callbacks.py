@@ -104,7 +104,7 @@ class EpisodeStats(BaseCallback):
 def save_vec_normalize(vec_normalize: VecNormalize, path: str | Path) -> None:
     """``VecNormalize.save``, atomically: a temporary file renamed over ``path`` once written, so that a crash or a
     full disk leaves the previous statistics intact (``VecNormalize.save`` writes in place)."""
-    from sb3_trpo_plus.persistence import atomic_write
+    from sb3_trpo_plus.common.persistence import atomic_write
 
     # what VecNormalize.save writes (its __getstate__ drops the venv)
     atomic_write(path, lambda file: pickle.dump(vec_normalize, file))

@@ -13,8 +13,8 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_trpo_plus.arguments import ArgumentError, Rule, boolean, check_arguments, integer, number, optional
-from sb3_trpo_plus.segment import SegmentDictRolloutBuffer, SegmentRolloutBuffer
+from sb3_trpo_plus.algorithm.segment import SegmentDictRolloutBuffer, SegmentRolloutBuffer
+from sb3_trpo_plus.common.arguments import ArgumentError, Rule, boolean, check_arguments, integer, number, optional
 
 VALUE_BASELINES = ("critic", "linear")
 SAMPLE_REUSE = ("none", "generalized")
@@ -65,8 +65,8 @@ HYPERPARAMETER_RULES: dict[str, Rule] = {
         lambda value: (
             value is None or (isinstance(value, type) and issubclass(value, SegmentRolloutBuffer | SegmentDictRolloutBuffer))
         ),
-        "None or a subclass of sb3_trpo_plus.segment.SegmentRolloutBuffer or SegmentDictRolloutBuffer (TRPOPlus fills "
-        "its buffer from collected segments)",
+        "None or a subclass of sb3_trpo_plus.algorithm.segment.SegmentRolloutBuffer or SegmentDictRolloutBuffer "
+        "(TRPOPlus fills its buffer from collected segments)",
     ),
     "rollout_buffer_kwargs": optional(dict, "a dict"),
     "normalize_advantage": boolean(),
@@ -103,7 +103,7 @@ finite ``int`` or ``float`` (or numpy numbers), never ``bool`` or ``str``, or a 
 
 
 def validate_hyperparameters(**hyperparameters: Any) -> None:
-    """Raise :class:`~sb3_trpo_plus.arguments.ArgumentError` naming the first hyperparameter that breaks its rule in
+    """Raise :class:`~sb3_trpo_plus.common.arguments.ArgumentError` naming the first hyperparameter that breaks its rule in
     ``HYPERPARAMETER_RULES``."""
     for name, value in hyperparameters.items():
         rule = HYPERPARAMETER_RULES.get(name)
@@ -119,7 +119,7 @@ def float_or_schedule(value: float | Schedule) -> float | Schedule:
 
 
 def check_combinations(hyperparameters: Mapping[str, Any]) -> None:
-    """Raise :class:`~sb3_trpo_plus.arguments.ArgumentError` naming hyperparameters that each pass their rule but do not
+    """Raise :class:`~sb3_trpo_plus.common.arguments.ArgumentError` naming hyperparameters that each pass their rule but do not
     work together (those that need no env; ``hyperparameters``: every constructor argument these checks read, each
     valid by itself):
 

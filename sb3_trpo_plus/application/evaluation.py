@@ -1,6 +1,6 @@
 """Evaluate a trained agent on seeded episodes: success rate and mean return.
 
-    from sb3_trpo_plus.evaluation import evaluate_agent, evaluation_env
+    from sb3_trpo_plus.application.evaluation import evaluate_agent, evaluation_env
 
     env = evaluation_env("Grasper3D-v7", normalization="run/vecnormalize.pkl")
     result = evaluate_agent(model, env, n_episodes=100, seed=20_000)  # reset seeds 20,000, 20,001, ...
@@ -8,7 +8,7 @@
 
 The env is one monitored env (a ``VecEnv`` of one); with a run's VecNormalize statistics its observations are
 normalized as in training, and the statistics stay fixed (``training=False``); rewards are not normalized, so the
-returns are the env's. A ``vecnormalize.pkl`` is read as data (:func:`sb3_trpo_plus.agents.load_normalization`):
+returns are the env's. A ``vecnormalize.pkl`` is read as data (:func:`sb3_trpo_plus.application.agents.load_normalization`):
 a file that would run code when unpickled is refused.
 """
 
@@ -25,7 +25,8 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecNormalize
 
-from sb3_trpo_plus.normalization import NormalizationStats, StatisticsMismatchError, check_statistics_fit, load_normalization
+from sb3_trpo_plus.algorithm.normalization import NormalizationStats, StatisticsMismatchError, check_statistics_fit
+from sb3_trpo_plus.application.run_files import load_normalization
 
 
 @dataclass(frozen=True)
@@ -70,13 +71,13 @@ def evaluation_env(
 
     :param normalization: the VecNormalize statistics of a run trained with VecNormalize. They are never updated, and
         rewards stay the env's unless ``norm_reward``. One of: the path of the run's ``vecnormalize.pkl``, read as data
-        by :func:`sb3_trpo_plus.agents.load_normalization` (a file that carries code is refused with
-        :class:`~sb3_trpo_plus.agents.RunFileError`); the statistics read so (``NormalizationStats``); a
+        by :func:`sb3_trpo_plus.application.agents.load_normalization` (a file that carries code is refused with
+        :class:`~sb3_trpo_plus.application.agents.RunFileError`); the statistics read so (``NormalizationStats``); a
         ``VecNormalize`` (the training one, or one unpickled from a trusted run), whose statistics the env shares, so
         that it follows them as training updates them. Each of these applies its saved ``norm_obs``, ``clip_obs`` and
         ``epsilon``. Or only the observation statistics (``VecNormalize.obs_rms``), with VecNormalize's defaults
         (``clip_obs`` 10, ``epsilon`` 1e-8). ``None``: observations as the env gives them. Statistics of another
-        observation shape raise :class:`~sb3_trpo_plus.normalization.StatisticsMismatchError`.
+        observation shape raise :class:`~sb3_trpo_plus.algorithm.normalization.StatisticsMismatchError`.
     :param seed: seed of the envs (env ``i``: ``seed + i``; their action spaces and first resets); ``evaluate_agent``
         seeds the resets itself
     :param wrapper_class: a Gymnasium wrapper of each env (not the training-only aids). As in SB3's ``make_vec_env``,

@@ -1,6 +1,6 @@
 """Replay memory of past segments and the recomputation of their advantages (thesis section 5.3.1).
 
-A :class:`~sb3_trpo_plus.segment.Segment` keeps what is needed to evaluate it again under the *current* value
+A :class:`~sb3_trpo_plus.algorithm.segment.Segment` keeps what is needed to evaluate it again under the *current* value
 function and observation statistics: raw observations, actions, the sampling policy's log-probabilities, raw
 rewards, episode starts, the step index inside the episode, and the raw terminal observations of time-limit
 truncations (for bootstrapping). :func:`recompute_advantages` does that evaluation.
@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from sb3_trpo_plus.reuse import vtrace_gae
-from sb3_trpo_plus.segment import Segment
+from sb3_trpo_plus.algorithm.reuse import vtrace_gae
+from sb3_trpo_plus.algorithm.segment import Segment
 
 ValueFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """``values = value_fn(observations, episode_timesteps)`` on flat batches (already normalised obs)."""
@@ -145,7 +145,7 @@ def recompute_advantages(
     :param normalize_obs: current observation normalisation (``VecNormalize.normalize_obs``), if any
     :param normalize_reward: current reward normalisation (``VecNormalize.normalize_reward``), if any
     :param trace_ratios: the truncated importance ratios ``c_t`` (``[step, env]``) from the flat normalised
-        observations: off-policy GAE (:func:`~sb3_trpo_plus.reuse.vtrace_gae`) instead of on-policy GAE
+        observations: off-policy GAE (:func:`~sb3_trpo_plus.algorithm.reuse.vtrace_gae`) instead of on-policy GAE
     :return: the segment's normalised observations, values, advantages and returns
     """
     n_steps, n_envs = segment.raw_rewards.shape

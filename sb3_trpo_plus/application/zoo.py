@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import ast
+import dataclasses
 import importlib
 import inspect
 import re
-import sys
-import types
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -15,14 +16,15 @@ import yaml
 from gymnasium.envs.registration import registry
 from torch import nn
 
-from sb3_trpo_plus.arguments import ArgumentError
+from sb3_trpo_plus.common.arguments import ArgumentError
 
 if TYPE_CHECKING:
     from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
 # An installed wheel carries the recipes as package data; a source checkout (or editable install) has the top-level folder
-_PACKAGED_ZOO_DIR = Path(__file__).resolve().parent / "zoo_hyperparams"
-ZOO_DIR = _PACKAGED_ZOO_DIR if _PACKAGED_ZOO_DIR.is_dir() else Path(__file__).resolve().parent.parent / "zoo_hyperparams"
+_PACKAGE = Path(__file__).resolve().parents[1]
+_PACKAGED_ZOO_DIR = _PACKAGE / "zoo_hyperparams"
+ZOO_DIR = _PACKAGED_ZOO_DIR if _PACKAGED_ZOO_DIR.is_dir() else _PACKAGE.parent / "zoo_hyperparams"
 ALGO_FILES = {"trpo_plus": "trpo_plus.yml", "trpo": "trpo.yml", "ppo": "ppo.yml"}
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
@@ -48,7 +50,7 @@ ZOO_KEYS: dict[str, tuple[type, ...]] = {
     "policy_kwargs": (dict, str),
 }
 # Keys of a TRPOPlus recipe that ``trpo-plus train`` and ``make_model`` consume (not rl-zoo3, not the constructor)
-RUN_KEYS: dict[str, tuple[type, ...]] = {
+WORKER_KEYS: dict[str, tuple[type, ...]] = {
     "rollout_workers": (str, type(None)),  # "BACKEND:N": collect with N rollout workers (parse_workers)
 }
 # packages whose wrapper classes a YAML file may name (rl-zoo3 imports and calls what env_wrapper names)
@@ -83,7 +85,7 @@ def algorithms() -> dict[str, type[OnPolicyAlgorithm]]:
     from sb3_contrib import TRPO
     from stable_baselines3 import PPO
 
-    from sb3_trpo_plus.trpo_plus import TRPOPlus
+    from sb3_trpo_plus.algorithm.trpo_plus import TRPOPlus
 
     return {"trpo_plus": TRPOPlus, "trpo": TRPO, "ppo": PPO}
 
@@ -154,7 +156,7 @@ def parse_policy_kwargs(value: Any, where: str) -> dict[str, Any]:
     return result
 
 
-def load_hyperparameters(path: str | Path, algo: str, env_ids: list[str] | None = None) -> dict[str, dict[str, Any]]:
+def load_hyperparameters(path: str | Path, algo: str, env_ids: Iterable[str] | None = None) -> dict[str, dict[str, Any]]:
     """Load and validate an rl-zoo YAML file for ``algo``; return ``{env_id: hyperparameters}``.
 
     Unknown keys, wrong types, unknown env ids and malformed YAML raise :class:`HyperparameterError`
@@ -172,10 +174,11 @@ def load_hyperparameters(path: str | Path, algo: str, env_ids: list[str] | None 
         raise HyperparameterError(f"{path}: malformed YAML: {error}") from None
     if not isinstance(data, dict):
         raise HyperparameterError(f"{path}: expected a mapping of env ids to hyperparameters")
-    accepted = {**_constructor_types(algos[algo]), **ZOO_KEYS, **(RUN_KEYS if algo == "trpo_plus" else {})}
+    accepted = {**_constructor_types(algos[algo]), **ZOO_KEYS, **(WORKER_KEYS if algo == "trpo_plus" else {})}
+    wanted = None if env_ids is None else set(env_ids)
     result: dict[str, dict[str, Any]] = {}
     for env_id, params in data.items():
-        if env_ids is not None and env_id not in env_ids:
+        if wanted is not None and env_id not in wanted:
             continue
         if env_id not in registry:
             raise HyperparameterError(f"{path}: unknown env id {env_id!r}")
@@ -213,9 +216,98 @@ def load_hyperparameters(path: str | Path, algo: str, env_ids: list[str] | None 
         if env_id in _our_env_ids():
             # so that the monitor CSV and rollout/success_rate carry the success flag
             checked.setdefault("monitor_kwargs", {"info_keywords": ("is_success",)})
-            checked.setdefault("callback", "sb3_trpo_plus.callbacks.RewardTermsCallback")
+            checked.setdefault("callback", "sb3_trpo_plus.application.callbacks.RewardTermsCallback")
         result[env_id] = checked
     return result
+
+
+@dataclass(frozen=True)
+class Recipe(Mapping[str, Any]):
+    """One env's entry of a recipe file, checked (:func:`load_hyperparameters`) and split once: the keys that build
+    the run (its envs, wrappers, normalisation, workers, budget) as fields, the algorithm's constructor arguments in
+    :attr:`constructor`. As a mapping it is the entry itself (``recipe["n_timesteps"]``), as rl-zoo3 reads it."""
+
+    env_id: str
+    algo: str
+    n_timesteps: int | float
+    policy: str
+    n_envs: int = 1
+    normalize: bool | dict[str, Any] = False
+    env_kwargs: dict[str, Any] | None = None
+    env_wrapper: Any = None
+    vec_env_wrapper: Any = None
+    callback: Any = None
+    frame_stack: int | None = None
+    monitor_kwargs: dict[str, Any] | None = None
+    rollout_workers: str | None = None
+    constructor: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """The algorithm's constructor arguments (``policy_kwargs`` included), ``lin_<x>`` schedules as their text."""
+
+    @classmethod
+    def of(cls, env_id: str, algo: str, entry: Mapping[str, Any]) -> Recipe:
+        """Split a checked entry (or one with overrides on top) into the run's keys and the constructor's."""
+        run = {key: value for key, value in entry.items() if key in RUN_KEYS}
+        return cls(env_id, algo, **run, constructor={k: v for k, v in entry.items() if k not in RUN_KEYS})
+
+    def replace(self, **overrides: Any) -> Recipe:
+        """This recipe with ``overrides`` on top (run keys and constructor arguments alike)."""
+        return Recipe.of(self.env_id, self.algo, {**self, **overrides})
+
+    def constructor_arguments(self) -> dict[str, Any]:
+        """:attr:`constructor` with rl-zoo's ``lin_<x>`` texts as SB3's ``LinearSchedule`` from ``x`` to 0."""
+        from stable_baselines3.common.utils import LinearSchedule
+
+        return {
+            key: LinearSchedule(float(value.removeprefix("lin_")), 0.0, 1.0)
+            if key in SCHEDULE_KEYS and isinstance(value, str)
+            else value
+            for key, value in self.constructor.items()
+        }
+
+    @property
+    def info_keywords(self) -> tuple[str, ...] | None:
+        """The info keys the envs' monitor records (``monitor_kwargs``' ``info_keywords``)."""
+        keywords = (self.monitor_kwargs or {}).get("info_keywords")
+        return None if keywords is None else tuple(keywords)
+
+    @property
+    def scripted_starts(self) -> dict[str, Any] | None:
+        """The ``ScriptedStarts`` options of ``env_wrapper`` (None without one); the batched engine and the rollout
+        workers run no other per-env wrapper, so any other raises ``ValueError`` naming it."""
+        if self.env_wrapper is None:
+            return None
+        entries = check_wrappers(self.env_wrapper, "env_wrapper", base="env_wrapper")
+        names = [next(iter(entry)) if isinstance(entry, dict) else entry for entry in entries]
+        if names != ["grasp_envs.wrappers.ScriptedStarts"]:
+            raise ValueError(
+                f"the batched engine runs no per-env wrapper but grasp_envs.wrappers.ScriptedStarts (once); this "
+                f"recipe's env_wrapper is {names}: use vec_env='dummy'"
+            )
+        entry = entries[0]
+        return dict(next(iter(entry.values())) or {}) if isinstance(entry, dict) else {}
+
+    def _entry(self) -> dict[str, Any]:
+        """The entry: every run key that is set (``n_envs`` and ``normalize`` always), then the constructor's."""
+        run = {key: getattr(self, key) for key in RUN_KEYS}
+        return {**{key: value for key, value in run.items() if value is not None}, **self.constructor}
+
+    def __getitem__(self, key: str) -> Any:
+        return self._entry()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._entry())
+
+    def __len__(self) -> int:
+        return len(self._entry())
+
+
+RUN_KEYS = (*(key for key in ZOO_KEYS if key != "policy_kwargs"), *WORKER_KEYS)
+"""A recipe's keys that build the run, not the algorithm: :class:`Recipe`'s fields."""
+
+
+def load_recipes(path: str | Path, algo: str, env_ids: Iterable[str] | None = None) -> dict[str, Recipe]:
+    """:func:`load_hyperparameters` as :class:`Recipe` records."""
+    return {env_id: Recipe.of(env_id, algo, entry) for env_id, entry in load_hyperparameters(path, algo, env_ids).items()}
 
 
 def check_wrappers(value: Any, where: str, base: str = "env_wrapper") -> list[str | dict[str, dict[str, Any]]]:
@@ -281,19 +373,19 @@ def evaluation_wrappers(value: Any) -> list[Any] | None:
 
 
 def _our_env_ids() -> tuple[str, ...]:
-    from sb3_trpo_plus.engines import batch_engine_ids
+    from sb3_trpo_plus.rollouts.engines import batch_engine_ids
 
     return batch_engine_ids()
 
 
 def check_constructor_values(entry: dict[str, Any], where: str) -> None:
     """The values of a TRPOPlus recipe's constructor arguments as the constructor checks them, before anything is
-    built: each in its range (:data:`~sb3_trpo_plus.hyperparameters.HYPERPARAMETER_RULES`; ``lin_<x>`` schedules
-    as ``x``) and together (:func:`~sb3_trpo_plus.hyperparameters.check_combinations`, the constructor's defaults
+    built: each in its range (:data:`~sb3_trpo_plus.algorithm.hyperparameters.HYPERPARAMETER_RULES`; ``lin_<x>`` schedules
+    as ``x``) and together (:func:`~sb3_trpo_plus.algorithm.hyperparameters.check_combinations`, the constructor's defaults
     for the arguments the recipe leaves out). :class:`HyperparameterError` names ``where`` (the file and the env)
     and the key."""
-    from sb3_trpo_plus.hyperparameters import HYPERPARAMETER_RULES, check_combinations
-    from sb3_trpo_plus.trpo_plus import TRPOPlus
+    from sb3_trpo_plus.algorithm.hyperparameters import HYPERPARAMETER_RULES, check_combinations
+    from sb3_trpo_plus.algorithm.trpo_plus import TRPOPlus
 
     for key, value in entry.items():
         rule = HYPERPARAMETER_RULES.get(key)
@@ -313,50 +405,6 @@ def check_constructor_values(entry: dict[str, Any], where: str) -> None:
         raise HyperparameterError(f"{where}: {error}") from None
 
 
-def config_module(algo: str, path: str | Path | None = None) -> str:
-    """Validate our YAML for ``algo`` (for ``trpo_plus`` its values too: :func:`check_constructor_values`) and expose
-    it to rl-zoo3 as an importable module; return its name.
-
-    rl-zoo3's ``-conf`` accepts a module with a ``hyperparams`` attribute: this avoids writing files and
-    makes rl-zoo3 use exactly the validated values.
-    """
-    path = Path(path) if path is not None else ZOO_DIR / ALGO_FILES[algo]
-    name = f"_sb3_trpo_plus_hyperparams_{algo}"
-    module = types.ModuleType(name)
-    hyperparams = load_hyperparameters(path, algo)
-    if algo == "trpo_plus":
-        for env_id, entry in hyperparams.items():
-            check_constructor_values(entry, f"{path}: {env_id}")
-    module.hyperparams = hyperparams  # type: ignore[attr-defined]
-    sys.modules[name] = module
-    return name
-
-
-def sample_trpo_plus_params(trial: Any, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
-    """Optuna sampler: rl-zoo3's TRPO search space plus TRPOPlus' own hyperparameters."""
-    from rl_zoo3.hyperparams_opt import sample_trpo_params
-
-    params = sample_trpo_params(trial, n_actions, n_envs, additional_args)
-    params["replay_memory"] = trial.suggest_int("replay_memory", 0, 5)
-    params["cg_warm_start"] = trial.suggest_categorical("cg_warm_start", [False, True])
-    params["cg_damping"] = trial.suggest_float("cg_damping", 0.01, 0.5, log=True)
-    params["value_baseline"] = trial.suggest_categorical("value_baseline", ["critic", "linear"])
-    return params
-
-
-def register_in_rl_zoo() -> None:
-    """Add TRPOPlus to rl-zoo3's algorithm and Optuna-sampler tables (idempotent)."""
-    from rl_zoo3 import utils as zoo_utils
-    from rl_zoo3.hyperparams_opt import HYPERPARAMS_CONVERTER, HYPERPARAMS_SAMPLER
-
-    from sb3_trpo_plus.trpo_plus import TRPOPlus
-
-    zoo_utils.ALGOS["trpo_plus"] = TRPOPlus
-    HYPERPARAMS_SAMPLER["trpo_plus"] = sample_trpo_plus_params
-    if "trpo" in HYPERPARAMS_CONVERTER:
-        HYPERPARAMS_CONVERTER["trpo_plus"] = HYPERPARAMS_CONVERTER["trpo"]
-
-
 def batch_training_env(
     env_id: str,
     *,
@@ -368,14 +416,14 @@ def batch_training_env(
     monitor_kwargs: dict[str, Any] | None = None,
     n_threads: int = 1,
 ) -> Any:
-    """The training envs of an rl-zoo3 run (:data:`sb3_trpo_plus.experiment.TrainingEnvs`) on the batched engine.
+    """The training envs of an rl-zoo3 run (:data:`sb3_trpo_plus.application.experiment.TrainingEnvs`) on the batched engine.
 
     ``wrapper_class`` is rl-zoo3's ``env_wrapper``: only ``grasp_envs.wrappers.ScriptedStarts`` can be run batched,
     any other raises ``TypeError`` naming it.
     """
     import os
 
-    from sb3_trpo_plus.engines import batch_envs, scripted_starts_options
+    from sb3_trpo_plus.rollouts.engines import batch_envs, scripted_starts_options
 
     return batch_envs(
         env_id,
@@ -414,15 +462,15 @@ def workers_training_env(
     num_workers: int,
     n_threads: int = 1,
 ) -> Any:
-    """The training envs of an rl-zoo3 run (:data:`sb3_trpo_plus.experiment.TrainingEnvs`) as a pool of rollout workers
-    (``sb3_trpo_plus.rollouts``): the recipe's
-    ``n_envs`` split evenly over ``num_workers`` workers of ``backend`` (``inprocess``, ``process`` or ``ray``), the
-    same seeds (env ``i``: ``seed + i``), ``env_kwargs`` and scripted starts; episodes in ``<run>/workers.monitor.csv``.
+    """The training envs of an rl-zoo3 run (:data:`sb3_trpo_plus.application.experiment.TrainingEnvs`) as a pool of
+    rollout workers (``sb3_trpo_plus.rollouts``): the recipe's ``n_envs`` split evenly over ``num_workers`` workers of
+    ``backend`` (``inprocess``, ``process`` or ``ray``), the same seeds (env ``i``: ``seed + i``), ``env_kwargs`` and
+    scripted starts; episodes in ``<run>/workers.monitor.csv``.
     """
     import os
 
     from sb3_trpo_plus import rollouts
-    from sb3_trpo_plus.engines import scripted_starts_options
+    from sb3_trpo_plus.rollouts.engines import scripted_starts_options
 
     return rollouts.split_pool(
         backend,

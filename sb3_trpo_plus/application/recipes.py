@@ -14,41 +14,27 @@ import importlib
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from sb3_trpo_plus.zoo import (
+from sb3_trpo_plus.application.zoo import (
     ALGO_FILES,
-    SCHEDULE_KEYS,
     ZOO_DIR,
     HyperparameterError,
+    Recipe,
     algorithms,
     check_wrappers,
-    load_hyperparameters,
+    load_recipes,
     parse_policy_kwargs,
 )
 
 if TYPE_CHECKING:
     from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
-# keys of a recipe that describe the environment or the run, not the algorithm's constructor
-_RUN_KEYS = (
-    "n_timesteps",
-    "n_envs",
-    "policy",
-    "normalize",
-    "env_wrapper",
-    "vec_env_wrapper",
-    "callback",
-    "frame_stack",
-    "monitor_kwargs",
-    "env_kwargs",
-    "rollout_workers",
-)
 
-
-def recipe(env_id: str, algo: str = "trpo_plus") -> dict[str, Any]:
-    """The validated hyperparameters of ``env_id`` in ``zoo_hyperparams/<algo>.yml``."""
+def recipe(env_id: str, algo: str = "trpo_plus") -> Recipe:
+    """The checked recipe of ``env_id`` in ``zoo_hyperparams/<algo>.yml``: a :class:`Recipe` record, which reads as
+    the YAML entry too (``recipe(env_id)["n_timesteps"]``)."""
     if algo not in ALGO_FILES:
         raise ValueError(f"algo must be one of {sorted(ALGO_FILES)}, got {algo!r}")
-    recipes = load_hyperparameters(ZOO_DIR / ALGO_FILES[algo], algo)
+    recipes = load_recipes(ZOO_DIR / ALGO_FILES[algo], algo)
     if env_id not in recipes:
         raise HyperparameterError(f"{ZOO_DIR / ALGO_FILES[algo]} has no recipe for {env_id!r} (it has {sorted(recipes)})")
     return recipes[env_id]
@@ -83,120 +69,93 @@ def make_model(
     ``overrides`` replace any key of the recipe, run keys (``n_envs``, ``env_kwargs``, ``normalize``, ...) and
     constructor arguments alike (e.g. ``tensorboard_log="runs"``). Train for the recipe's budget with
     ``model.learn(recipe(env_id, algo)["n_timesteps"])``; the command also logs each reward term
-    (``sb3_trpo_plus.callbacks.RewardTermsCallback``, pass it to ``learn`` to do the same).
+    (``sb3_trpo_plus.application.callbacks.RewardTermsCallback``, pass it to ``learn`` to do the same).
     """
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecFrameStack, VecNormalize
 
-    from sb3_trpo_plus.engines import batch_engine_ids, batch_envs, has_batch_engine
+    from sb3_trpo_plus.rollouts.engines import batch_engine_ids, batch_envs, has_batch_engine
 
     if vec_env not in ("auto", "batch", "dummy"):
         raise ValueError(f"vec_env must be 'auto', 'batch' or 'dummy', got {vec_env!r}")
     if vec_env == "batch" and not has_batch_engine(env_id):
         raise ValueError(f"vec_env='batch' runs the tasks of grasp_envs ({', '.join(batch_engine_ids())}), got {env_id!r}")
-    params = {**recipe(env_id, algo), **overrides}
+    chosen = recipe(env_id, algo)
     if "policy_kwargs" in overrides:  # as the YAML's: checked keys, activation names ("tanh") as classes
-        params["policy_kwargs"] = parse_policy_kwargs(overrides["policy_kwargs"], f"make_model({env_id!r})")
-    recipe_workers = params.get("rollout_workers")
-    if workers is None and recipe_workers is not None:
+        overrides = {**overrides, "policy_kwargs": parse_policy_kwargs(overrides["policy_kwargs"], f"make_model({env_id!r})")}
+    chosen = chosen.replace(**overrides)
+    if workers is None and chosen.rollout_workers is not None:
         if vec_env != "auto":
             raise ValueError(
-                f"the recipe of {env_id} collects with rollout workers (rollout_workers={recipe_workers!r}); "
+                f"the recipe of {env_id} collects with rollout workers (rollout_workers={chosen.rollout_workers!r}); "
                 f"vec_env={vec_env!r} needs rollout_workers=None and overlap_collection=False"
             )
-        workers = recipe_workers
+        workers = chosen.rollout_workers
     env: Any
     if workers is not None:
-        env = _rollout_workers(env_id, algo, workers, params, seed, sim_threads, vec_env)
+        env = _rollout_workers(chosen, workers, seed, sim_threads, vec_env)
     elif vec_env == "batch" or (vec_env == "auto" and has_batch_engine(env_id)):
         env = batch_envs(
             env_id,
-            int(params.get("n_envs", 1)),
+            chosen.n_envs,
             seed=seed,
             n_threads=sim_threads,
-            env_kwargs=params.get("env_kwargs"),
-            scripted_starts=_scripted_starts(params.get("env_wrapper")),
-            info_keywords=(params.get("monitor_kwargs") or {}).get("info_keywords", ()),
+            env_kwargs=chosen.env_kwargs,
+            scripted_starts=chosen.scripted_starts,
+            info_keywords=chosen.info_keywords or (),
         )
     else:
         env = make_vec_env(
             env_id,
-            n_envs=int(params.get("n_envs", 1)),
+            n_envs=chosen.n_envs,
             seed=seed,
-            env_kwargs=params.get("env_kwargs"),
-            wrapper_class=_wrapper_chain(params.get("env_wrapper"), "env_wrapper"),
-            monitor_kwargs=params.get("monitor_kwargs"),
+            env_kwargs=chosen.env_kwargs,
+            wrapper_class=_wrapper_chain(chosen.env_wrapper, "env_wrapper"),
+            monitor_kwargs=chosen.monitor_kwargs,
         )
-    vec_wrapper = _wrapper_chain(params.get("vec_env_wrapper"), "vec_env_wrapper")
+    vec_wrapper = _wrapper_chain(chosen.vec_env_wrapper, "vec_env_wrapper")
     if vec_wrapper is not None:
         env = vec_wrapper(env)
-    constructor = {key: _schedule(key, value) for key, value in params.items() if key not in _RUN_KEYS}
-    normalize = params.get("normalize", False)
-    if normalize:
-        kwargs = dict(normalize) if isinstance(normalize, dict) else {}
+    constructor = chosen.constructor_arguments()
+    if chosen.normalize:
+        kwargs = dict(chosen.normalize) if isinstance(chosen.normalize, dict) else {}
         if "gamma" in constructor:
             kwargs["gamma"] = constructor["gamma"]  # as rl-zoo3: the returns are normalised with the agent's discount
         env = VecNormalize(env, **kwargs)
-    if params.get("frame_stack"):
-        env = VecFrameStack(env, int(params["frame_stack"]))
-    return algorithms()[algo](params["policy"], env, seed=seed, **constructor)
+    if chosen.frame_stack:
+        env = VecFrameStack(env, int(chosen.frame_stack))
+    return algorithms()[algo](chosen.policy, env, seed=seed, **constructor)
 
 
-def _rollout_workers(
-    env_id: str, algo: str, workers: str, params: dict[str, Any], seed: int | None, sim_threads: int, vec_env: str
-) -> Any:
+def _rollout_workers(chosen: Recipe, workers: str, seed: int | None, sim_threads: int, vec_env: str) -> Any:
     """The recipe's training envs as a pool of rollout workers (``workers="BACKEND:N"``)."""
     from sb3_trpo_plus import rollouts
-    from sb3_trpo_plus.zoo import parse_workers
+    from sb3_trpo_plus.application.zoo import parse_workers
 
     try:
         backend, count = parse_workers(workers)
     except ValueError as error:
         raise ValueError(f"workers: {error}") from None
-    if algo != "trpo_plus":
-        raise ValueError(f"workers collect whole segments for algo='trpo_plus' only, got algo={algo!r}")
+    if chosen.algo != "trpo_plus":
+        raise ValueError(f"workers collect whole segments for algo='trpo_plus' only, got algo={chosen.algo!r}")
     if vec_env != "auto":
         raise ValueError(f"workers collect with their own envs; vec_env={vec_env!r} does not apply")
     return rollouts.split_pool(
         backend,
-        env_id,
-        int(params.get("n_envs", 1)),
+        chosen.env_id,
+        chosen.n_envs,
         count,
         seed=seed,
         sim_threads=sim_threads,
-        env_kwargs=params.get("env_kwargs"),
-        scripted_starts=_scripted_starts(params.get("env_wrapper")),
-        info_keywords=(params.get("monitor_kwargs") or {}).get("info_keywords"),
+        env_kwargs=chosen.env_kwargs,
+        scripted_starts=chosen.scripted_starts,
+        info_keywords=chosen.info_keywords,
     )
-
-
-def _schedule(key: str, value: Any) -> Any:
-    """rl-zoo's ``lin_<x>`` text of a schedulable hyperparameter as SB3's linear schedule from ``x`` to 0."""
-    if key in SCHEDULE_KEYS and isinstance(value, str):
-        initial = float(value.removeprefix("lin_"))
-        return lambda progress_remaining: progress_remaining * initial
-    return value
-
-
-def _scripted_starts(value: Any) -> dict[str, Any] | None:
-    """The ``ScriptedStarts`` options of a recipe's ``env_wrapper`` (None without one); the batched engine runs no
-    other per-env wrapper, so any other raises ``ValueError`` naming it."""
-    if value is None:
-        return None
-    entries = check_wrappers(value, "env_wrapper", base="env_wrapper")
-    names = [next(iter(entry)) if isinstance(entry, dict) else entry for entry in entries]
-    if names != ["grasp_envs.wrappers.ScriptedStarts"]:
-        raise ValueError(
-            f"the batched engine runs no per-env wrapper but grasp_envs.wrappers.ScriptedStarts (once); this recipe's "
-            f"env_wrapper is {names}: use vec_env='dummy'"
-        )
-    entry = entries[0]
-    return dict(next(iter(entry.values())) or {}) if isinstance(entry, dict) else {}
 
 
 def _wrapper_chain(value: Any, key: str) -> Callable[[Any], Any] | None:
     """rl-zoo's ``env_wrapper`` / ``vec_env_wrapper`` list as one callable, each name checked
-    (:func:`sb3_trpo_plus.zoo.check_wrappers`) before it is imported (rl-zoo3 need not be installed)."""
+    (:func:`sb3_trpo_plus.application.zoo.check_wrappers`) before it is imported (rl-zoo3 need not be installed)."""
     if value is None:
         return None
     wrappers = []

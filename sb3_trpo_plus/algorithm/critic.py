@@ -16,10 +16,10 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.policies import ActorCriticPolicy
 from torch.nn import functional as F
 
-from sb3_trpo_plus.baselines import LinearFeatureBaseline
-from sb3_trpo_plus.replay import RolloutEvaluation
-from sb3_trpo_plus.segment import Segment
-from sb3_trpo_plus.update import ValueFit
+from sb3_trpo_plus.algorithm.baselines import LinearFeatureBaseline
+from sb3_trpo_plus.algorithm.replay import RolloutEvaluation
+from sb3_trpo_plus.algorithm.segment import Segment
+from sb3_trpo_plus.algorithm.update import ValueFit
 
 Minibatch = tuple[th.Tensor, th.Tensor, th.Tensor | None]
 """Observations, returns (the critic's targets) and the samples' weights (None: unweighted)."""

@@ -2,7 +2,7 @@
 advantages, the trust-region radius, and the weighted critic fit.
 
 ``TRPOPlus(sample_reuse="generalized")`` calls :func:`generalized_batch` and :func:`fit_weighted_critic` each update;
-the numerics they rest on (the batch weights, off-policy GAE) are in :mod:`sb3_trpo_plus.reuse`.
+the numerics they rest on (the batch weights, off-policy GAE) are in :mod:`sb3_trpo_plus.algorithm.reuse`.
 """
 
 from __future__ import annotations
@@ -16,11 +16,11 @@ import torch as th
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import RolloutBufferSamples
 
-from sb3_trpo_plus.critic import fit_critic, shuffled_minibatches
-from sb3_trpo_plus.replay import RolloutEvaluation
-from sb3_trpo_plus.reuse import ReuseWeights
-from sb3_trpo_plus.segment import Segment
-from sb3_trpo_plus.update import PolicyBatch, ValueFit
+from sb3_trpo_plus.algorithm.critic import fit_critic, shuffled_minibatches
+from sb3_trpo_plus.algorithm.replay import RolloutEvaluation
+from sb3_trpo_plus.algorithm.reuse import ReuseWeights
+from sb3_trpo_plus.algorithm.segment import Segment
+from sb3_trpo_plus.algorithm.update import PolicyBatch, ValueFit
 
 TraceRatios = Callable[[np.ndarray], np.ndarray]
 """The traces of one stored segment's off-policy GAE, from its normalised observations (flat): ``(n_steps, n_envs)``."""
@@ -30,7 +30,7 @@ TraceRatios = Callable[[np.ndarray], np.ndarray]
 class ReuseSettings:
     """How a generalized update reuses its batches.
 
-    :param weights: the batch weights (``sb3_trpo_plus.reuse.reuse_weights``)
+    :param weights: the batch weights (``sb3_trpo_plus.algorithm.reuse.reuse_weights``)
     :param trace_clip: truncation of the importance ratios that carry off-policy GAE's traces (V-trace: 1)
     :param kl_vary: the radius ``epsilon = sqrt(2 target_kl)`` less the weighted mean ``|pi_current / q - 1|``
         already spent (GeTRPO's ``eps_vary``), instead of ``target_kl * trust_scale**2``

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import argparse
 import types
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
-# the primitives are grasp_envs' (the options of its tasks follow the same rules)
-from grasp_envs.options import Rule, integer, is_int, is_keywords, is_names
+# the primitives and the check are grasp_envs' (the options of its tasks follow the same rules)
+from grasp_envs.options import ArgumentError, Rule, check_arguments, integer, is_int, is_keywords, is_names
 from grasp_envs.options import is_number as is_finite_number
 
 __all__ = [
@@ -38,10 +38,6 @@ __all__ = [
     "number",
     "optional",
 ]
-
-
-class ArgumentError(ValueError):
-    """An argument, or a combination of arguments, that cannot work; the message names each as the caller wrote it."""
 
 
 class CommandLineParser(argparse.ArgumentParser):
@@ -103,12 +99,3 @@ def choice(options: Sequence[str], *, optional: bool = False) -> Rule:
         lambda value: (optional and value is None) or (isinstance(value, str) and value in options),
         ("None or " if optional else "") + f"one of {list(options)}",
     )
-
-
-def check_arguments(owner: str, rules: Mapping[str, Rule], arguments: Mapping[str, Any]) -> None:
-    """Raise :class:`ArgumentError` naming the first of ``arguments`` that breaks its rule:
-    ``"<owner>: `<name>` must be <requirement>, got <value>"``."""
-    for name, value in arguments.items():
-        rule = rules[name]
-        if not rule.accepts(value):
-            raise ArgumentError(f"{owner}: `{name}` must be {rule.requirement}, got {value!r}")

@@ -3,7 +3,7 @@ replay batch they learn from, and the step's log records.
 
 ``TRPOPlus.update_policy`` is these two calls; a variant of the update (several steps per batch, another trust
 region) calls them itself rather than reaching into the algorithm's private methods. The numerics they combine
-(Fisher-vector products, conjugate gradient, the line search) are in :mod:`sb3_trpo_plus.natural_gradient`.
+(Fisher-vector products, conjugate gradient, the line search) are in :mod:`sb3_trpo_plus.algorithm.natural_gradient`.
 """
 
 from __future__ import annotations
@@ -19,14 +19,14 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import RolloutBufferSamples
 from torch import nn
 
-from sb3_trpo_plus.natural_gradient import (
+from sb3_trpo_plus.algorithm.natural_gradient import (
     LineSearchResult,
     backtracking_line_search,
     conjugate_gradient,
     fisher_vector_product,
     flat_gradient,
 )
-from sb3_trpo_plus.replay import RolloutEvaluation, effective_sample_size, importance_weights
+from sb3_trpo_plus.algorithm.replay import RolloutEvaluation, effective_sample_size, importance_weights
 
 
 def actor_parameters(policy: ActorCriticPolicy) -> list[nn.Parameter]:

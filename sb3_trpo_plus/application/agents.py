@@ -39,10 +39,9 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from sb3_trpo_plus.normalization import (  # noqa: F401  (RunFileError, load_normalization: this module's names too)
-    NormalizationStats,
+from sb3_trpo_plus.algorithm.normalization import NormalizationStats, StatisticsMismatchError
+from sb3_trpo_plus.application.run_files import (  # noqa: F401  (RunFileError, load_normalization: this module's names too)
     RunFileError,
-    StatisticsMismatchError,
     StatisticsUnpickler,
     load_normalization,
 )
@@ -114,8 +113,8 @@ def load_run_yaml(path: str | Path) -> Any:
 
 def parse_dict_text(text: str, where: str) -> dict[str, Any]:
     """rl-zoo3's ``"dict(key=value, ...)"`` text as a dict of literals, without evaluating it
-    (:func:`sb3_trpo_plus.zoo.dict_text`)."""
-    from sb3_trpo_plus.zoo import HyperparameterError, dict_text
+    (:func:`sb3_trpo_plus.application.zoo.dict_text`)."""
+    from sb3_trpo_plus.application.zoo import HyperparameterError, dict_text
 
     try:
         return dict_text(text, where, "it")
@@ -180,7 +179,7 @@ def read_run_config(run_folder: str | Path, env_id: str | None = None, algo: str
 def _check_named_classes(hyperparams: dict[str, Any], path: Path) -> None:
     """Refuse a config whose ``env_wrapper``, ``vec_env_wrapper``, ``callback`` or ``policy`` names anything but a
     class of that kind from a known package: rl-zoo3 imports and calls what these name."""
-    from sb3_trpo_plus.zoo import HyperparameterError, check_policy, check_wrappers
+    from sb3_trpo_plus.application.zoo import HyperparameterError, check_policy, check_wrappers
 
     try:
         for key in ("env_wrapper", "vec_env_wrapper", "callback"):
@@ -199,7 +198,7 @@ def validate_run_files(run_folder: str | Path, env_id: str | None = None) -> Non
 
 def _parse_kwargs_text(text: str, where: str, key: str) -> dict[str, Any]:
     if key == "policy_kwargs":
-        from sb3_trpo_plus.zoo import HyperparameterError, parse_policy_kwargs
+        from sb3_trpo_plus.application.zoo import HyperparameterError, parse_policy_kwargs
 
         try:
             return parse_policy_kwargs(text, where)
@@ -276,7 +275,7 @@ _CLASS_REPR = re.compile(r"^<class '([\w.]+)'>$")
 def _known_classes() -> dict[str, type]:
     from stable_baselines3.common import torch_layers
 
-    from sb3_trpo_plus.zoo import ACTIVATIONS
+    from sb3_trpo_plus.application.zoo import ACTIVATIONS
 
     classes: list[type] = [*ACTIVATIONS.values(), th.nn.Identity]
     classes += [torch_layers.FlattenExtractor, torch_layers.NatureCNN, torch_layers.CombinedExtractor]
@@ -301,7 +300,7 @@ def _literal_or_class(text: Any, where: str) -> Any:
 
 def _policy_class(algo: str, data: dict[str, Any], config: dict[str, Any], model_path: Path) -> type[BasePolicy]:
     """The policy class: by its qualified name in the zip (plain fields), else the config's alias; never imported by name."""
-    from sb3_trpo_plus.zoo import algorithms
+    from sb3_trpo_plus.application.zoo import algorithms
 
     algos = algorithms()
     if algo not in algos:
@@ -373,10 +372,11 @@ def load_policy(
 # ---------------------------------------------------------------------------------------------- environments
 def _wrapper_class(hyperparams: dict[str, Any], key: str, where: Path) -> Callable | None:
     """rl-zoo3's ``env_wrapper`` / ``vec_env_wrapper`` of a run, each name checked to be a wrapper class of a known
-    package (:func:`sb3_trpo_plus.zoo.check_wrappers`), the training aids left out (evaluation envs never get them)."""
+    package (:func:`sb3_trpo_plus.application.zoo.check_wrappers`), the training aids left out (evaluation envs never
+    get them)."""
     from rl_zoo3.utils import get_wrapper_class
 
-    from sb3_trpo_plus.zoo import HyperparameterError, check_wrappers, evaluation_wrappers
+    from sb3_trpo_plus.application.zoo import HyperparameterError, check_wrappers, evaluation_wrappers
 
     value = hyperparams.get(key)
     if value is None:
@@ -398,11 +398,12 @@ def make_eval_env(
     norm_reward: bool = False,
 ) -> VecEnv:
     """The run's test env, as rl-zoo3's ``create_test_env`` makes it, without unpickling anything: the evaluation env
-    (:func:`sb3_trpo_plus.evaluation.evaluation_env`) of the run's env id, ``env_kwargs`` (updated by ``env_kwargs``),
-    env wrappers without training aids, VecEnv wrapper and frame stacking, with the VecNormalize statistics frozen
-    (``normalization``: read by :func:`load_normalization`, or a VecNormalize unpickled by the trusted path).
+    (:func:`sb3_trpo_plus.application.evaluation.evaluation_env`) of the run's env id, ``env_kwargs`` (updated by
+    ``env_kwargs``), env wrappers without training aids, VecEnv wrapper and frame stacking, with the VecNormalize
+    statistics frozen (``normalization``: read by :func:`load_normalization`, or a VecNormalize unpickled by the
+    trusted path).
     """
-    from sb3_trpo_plus.evaluation import evaluation_env
+    from sb3_trpo_plus.application.evaluation import evaluation_env
 
     where = config.stats_dir / "config.yml"
     if config.normalize_kwargs is not None and normalization is None:
@@ -451,7 +452,7 @@ def load_agent(
     stats_path = config.stats_dir / "vecnormalize.pkl"
     has_stats = config.normalize_kwargs is not None and stats_path.is_file()
     if trust_pickle:
-        from sb3_trpo_plus.zoo import algorithms
+        from sb3_trpo_plus.application.zoo import algorithms
 
         model = load_trusted_file(
             lambda: algorithms()[config.algo].load(

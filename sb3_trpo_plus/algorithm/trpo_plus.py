@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import io
 import math
-import pathlib
 import random
 import time
 from collections import deque
@@ -22,32 +20,30 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.utils import FloatSchedule, explained_variance
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_trpo_plus.arguments import ArgumentError, Rule, check_arguments
-from sb3_trpo_plus.baselines import LinearFeatureBaseline
-from sb3_trpo_plus.collection import SegmentCollection
-from sb3_trpo_plus.critic import Minibatch, buffer_minibatches, fit_critic, fit_linear_baseline, shuffled_minibatches
-from sb3_trpo_plus.generalized import ReuseSettings, fit_weighted_critic, generalized_batch
-from sb3_trpo_plus.hyperparameters import (
+from sb3_trpo_plus.algorithm.baselines import LinearFeatureBaseline
+from sb3_trpo_plus.algorithm.collection import SegmentCollection
+from sb3_trpo_plus.algorithm.critic import Minibatch, buffer_minibatches, fit_critic, fit_linear_baseline, shuffled_minibatches
+from sb3_trpo_plus.algorithm.generalized import ReuseSettings, fit_weighted_critic, generalized_batch
+from sb3_trpo_plus.algorithm.hyperparameters import (
     HYPERPARAMETER_RULES,
     check_combinations,
     float_or_schedule,
     validate_hyperparameters,
 )
-from sb3_trpo_plus.natural_gradient import detached_distribution
-from sb3_trpo_plus.persistence import atomic_write
-from sb3_trpo_plus.replay import (
+from sb3_trpo_plus.algorithm.natural_gradient import detached_distribution
+from sb3_trpo_plus.algorithm.replay import (
     RolloutEvaluation,
-    StoredRollout,
     recompute_advantages,
 )
-from sb3_trpo_plus.reuse import ReuseWeights, reuse_weights
-from sb3_trpo_plus.rollouts import rollout_workers
-from sb3_trpo_plus.segment import (
+from sb3_trpo_plus.algorithm.reuse import ReuseWeights, reuse_weights
+from sb3_trpo_plus.algorithm.saving import SavedRun
+from sb3_trpo_plus.algorithm.segment import (
     Segment,
     SegmentDictRolloutBuffer,
     SegmentRolloutBuffer,
 )
-from sb3_trpo_plus.update import (
+from sb3_trpo_plus.algorithm.segment_pool import rollout_workers
+from sb3_trpo_plus.algorithm.update import (
     NaturalGradientSettings,
     PolicyBatch,
     PolicyStep,
@@ -61,11 +57,12 @@ from sb3_trpo_plus.update import (
     surrogate_advantages,
     warm_start_from,
 )
+from sb3_trpo_plus.common.arguments import ArgumentError, Rule, check_arguments
 
 SelfTRPOPlus = TypeVar("SelfTRPOPlus", bound="TRPOPlus")
 
 
-class TRPOPlus(SegmentCollection, TRPO):
+class TRPOPlus(SavedRun, SegmentCollection, TRPO):
     """
     Trust Region Policy Optimization with replay memory and warm-started conjugate gradient.
 
@@ -268,8 +265,9 @@ class TRPOPlus(SegmentCollection, TRPO):
         return reuse_weights(self.reuse_batches, self.reuse_max_batches)
 
     def _check_combinations(self, hyperparameters: dict[str, Any] | None = None) -> None:
-        """Refuse hyperparameters that do not work together (:func:`~sb3_trpo_plus.hyperparameters.check_combinations`;
-        ``hyperparameters``: default, this model's), and ``overlap_collection`` on an env that is no pool of rollout
+        """Refuse hyperparameters that do not work together
+        (:func:`~sb3_trpo_plus.algorithm.hyperparameters.check_combinations`; ``hyperparameters``: default, this
+        model's), and ``overlap_collection`` on an env that is no pool of rollout
         workers: it collects on them while the learner updates. At construction, and again at ``learn``: SB3's
         ``load`` and ``set_env`` skip ``__init__``."""
         check_combinations(hyperparameters or {name: getattr(self, name) for name in _COMBINED})
@@ -353,7 +351,7 @@ class TRPOPlus(SegmentCollection, TRPO):
         self, segment: Segment, reuse: ReuseWeights
     ) -> tuple[PolicyBatch, PolicyStep, ValueFit, tuple[float, float]]:
         """GeTRPO's update: the fresh batch and the stored ones weighted by age, off-policy advantages, the generalized
-        radius, the weighted critic fit (:mod:`sb3_trpo_plus.generalized`). With ``overlap_collection`` the fresh
+        radius, the weighted critic fit (:mod:`sb3_trpo_plus.algorithm.generalized`). With ``overlap_collection`` the fresh
         segment is one update old and is evaluated as the stored ones."""
         settings = ReuseSettings(reuse, self.reuse_trace_clip, self.reuse_kl_vary)
         stored = list(reversed(self.rollout_memory or []))  # newest first
@@ -467,10 +465,10 @@ class TRPOPlus(SegmentCollection, TRPO):
 
     def update_policy(self, batch: PolicyBatch, radius: float | None = None) -> PolicyStep:
         """The update's policy step: one natural-gradient step inside the trust region of ``radius`` (default
-        ``current_target_kl``; :func:`~sb3_trpo_plus.update.natural_gradient_step`), CG warm-started from the previous
-        update's step with ``cg_warm_start``; the batch's sample weights, where it has them, weigh the surrogate, the
+        ``current_target_kl``; :func:`~sb3_trpo_plus.algorithm.update.natural_gradient_step`), CG warm-started from the
+        previous update's step with ``cg_warm_start``; the batch's sample weights, where it has them, weigh the surrogate, the
         Fisher matrix and the KL. A subclass that changes the policy step overrides this method and calls the public
-        functions of :mod:`sb3_trpo_plus.update`."""
+        functions of :mod:`sb3_trpo_plus.algorithm.update`."""
         radius = self.current_target_kl if radius is None else radius
         actions = self.action_tensor(batch.actions)
         distribution = self.policy.get_distribution(batch.observations)
@@ -495,7 +493,7 @@ class TRPOPlus(SegmentCollection, TRPO):
 
     @property
     def natural_gradient_settings(self) -> NaturalGradientSettings:
-        """This model's CG and line-search hyperparameters, as :func:`~sb3_trpo_plus.update.natural_gradient_step`
+        """This model's CG and line-search hyperparameters, as :func:`~sb3_trpo_plus.algorithm.update.natural_gradient_step`
         takes them."""
         return NaturalGradientSettings(
             cg_max_steps=self.cg_max_steps,
@@ -543,99 +541,6 @@ class TRPOPlus(SegmentCollection, TRPO):
         record("train/policy_step_time", timings.policy)
         record("train/value_fit_time", timings.value)
 
-    # ------------------------------------------------------------------ learn / save / load
-    def learn(
-        self: SelfTRPOPlus,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 1,
-        tb_log_name: str = "TRPOPlus",
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfTRPOPlus:
-        """SB3's ``learn``. A rollout worker process that dies raises
-        :class:`~sb3_trpo_plus.worker_failures.RolloutWorkerError` naming the worker and its env; the weights are those of
-        the last completed update (an update starts only once its rollout is complete).
-        Ctrl-C: see :class:`~sb3_trpo_plus.callbacks.SaveOnInterrupt`.
-        """
-        from sb3_trpo_plus.worker_failures import subprocess_env_ids, worker_failure
-
-        env_ids = subprocess_env_ids(self.env)  # asked now: a dead worker cannot say which env it stepped
-        try:
-            return super().learn(
-                total_timesteps=total_timesteps,
-                callback=callback,
-                log_interval=log_interval,
-                tb_log_name=tb_log_name,
-                reset_num_timesteps=reset_num_timesteps,
-                progress_bar=progress_bar,
-            )
-        except (EOFError, ConnectionError) as error:
-            failure = worker_failure(self.env, error, env_ids)
-            if failure is None:
-                raise
-            raise failure from error
-
-    def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_actor_params"]
-
-    def save(
-        self,
-        path: str | pathlib.Path | io.BufferedIOBase,
-        exclude: Iterable[str] | None = None,
-        include: Iterable[str] | None = None,
-    ) -> None:
-        """Save atomically (temporary file + rename). ``exclude=["rollout_memory"]`` leaves the replay memory out.
-
-        The random generators' states are saved too, so that ``load`` + ``learn`` continues a run exactly.
-        """
-        pending = self._rng_states  # a loaded run not resumed yet: its own states, not this program's
-        self._rng_states = pending or {
-            "torch": th.get_rng_state(),
-            "numpy": np.random.get_state(),
-            "python": random.getstate(),
-        }
-        try:
-            if isinstance(path, io.BufferedIOBase):
-                super().save(path, exclude=exclude, include=include)
-                return
-            target = pathlib.Path(path)
-            if target.suffix == "":
-                target = target.with_suffix(".zip")
-            atomic_write(target, lambda file: super(TRPOPlus, self).save(file, exclude=exclude, include=include))
-        finally:
-            self._rng_states = pending
-
-    @classmethod
-    def load(
-        cls: type[SelfTRPOPlus],
-        path: str | pathlib.Path | io.BufferedIOBase,
-        env: GymEnv | None = None,
-        device: th.device | str = "auto",
-        custom_objects: dict[str, Any] | None = None,
-        print_system_info: bool = False,
-        force_reset: bool = True,
-        **kwargs: Any,
-    ) -> SelfTRPOPlus:
-        """Load a model with its replay memory, warm-start step and random generators' states (restored when
-        ``learn(..., reset_num_timesteps=False)`` resumes the run, not before).
-
-        Unpickles parts of the zip: load only files you trust (``sb3_trpo_plus.agents`` reads a policy as data).
-        A truncated or corrupted file raises ``ValueError`` naming it and what failed.
-        """
-        try:
-            model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
-        except OSError:  # a missing or unreadable file is no damaged one
-            raise
-        except Exception as error:  # whatever a damaged zip's unpickling or decoding raises
-            where = path if isinstance(path, str | pathlib.Path) else "the model stream"
-            cause = f"{type(error).__name__}: {error}"
-            raise ValueError(f"{where}: cannot load the model (truncated or corrupted?): {cause}") from error
-        # the run's random generators' states stay with the model until learn(reset_num_timesteps=False) resumes it
-        # (_setup_learn); until then the program's generators are as SB3's load leaves them (seeded with model.seed)
-        _upgrade_from_0_1(model)
-        return model
-
 
 _COMBINED = (
     "sample_reuse",
@@ -647,7 +552,7 @@ _COMBINED = (
     "reuse_max_batches",
     "overlap_collection",
 )
-"""The hyperparameters :func:`~sb3_trpo_plus.hyperparameters.check_combinations` reads."""
+"""The hyperparameters :func:`~sb3_trpo_plus.algorithm.hyperparameters.check_combinations` reads."""
 
 
 def _buffer_rules(observation_space: spaces.Space) -> dict[str, Rule]:
@@ -660,17 +565,3 @@ def _buffer_rules(observation_space: spaces.Space) -> dict[str, Rule]:
         return value is None or issubclass(value, DictRolloutBuffer) == dict_space
 
     return {"rollout_buffer_class": Rule(accepts, f"None or a subclass of {fits.__name__} for {space}")}
-
-
-def _upgrade_from_0_1(model: TRPOPlus) -> None:
-    """A model saved by version 0.1.0: its replay records as segments, its episode step counters renamed."""
-    state = model.__dict__
-    if "_episode_timesteps" in state:
-        state["_last_episode_timesteps"] = state.pop("_episode_timesteps")
-    state.pop("_last_original_obs", None)
-    memory = model.rollout_memory
-    if memory and any(isinstance(record, StoredRollout) for record in memory):
-        model.rollout_memory = deque(
-            (record.to_segment() if isinstance(record, StoredRollout) else record for record in memory),
-            maxlen=memory.maxlen,
-        )
