@@ -75,7 +75,7 @@ from pathlib import Path
 
 import grasp_envs
 import sb3_trpo_plus
-from sb3_trpo_plus.zoo import ALGO_FILES, ZOO_DIR
+from sb3_trpo_plus.application.zoo import ALGO_FILES, ZOO_DIR
 
 venv = Path(sys.argv[1]).resolve()
 for where in (Path(sb3_trpo_plus.__file__), Path(grasp_envs.__file__), ZOO_DIR):
