@@ -1,4 +1,5 @@
-"""TRPOPlus: TRPO with a replay memory and warm-started conjugate gradient (thesis chapter 5.3)."""
+"""TRPOPlus: sb3-contrib's TRPO with generalized sample reuse, and the thesis' replay memory and warm-started
+conjugate gradient (chapter 5.3) as options."""
 
 from __future__ import annotations
 
@@ -64,13 +65,16 @@ SelfTRPOPlus = TypeVar("SelfTRPOPlus", bound="TRPOPlus")
 
 class TRPOPlus(SavedRun, SegmentCollection, TRPO):
     """
-    Trust Region Policy Optimization with replay memory and warm-started conjugate gradient.
+    Trust Region Policy Optimization with generalized sample reuse.
 
-    TRPO: Schulman et al. (2015) https://arxiv.org/abs/1502.05477. Improvements: P. Kovacs,
-    *Learning of object grasping in a robotic system* (master's thesis, 2017), section 5.3:
-    a replay memory of the last ``k`` rollouts (5.3.1) and CG warm-started with the previous
-    update step (5.3.2, after Martens 2010). With ``replay_memory=0``, ``cg_warm_start=False`` and
-    ``value_baseline="critic"`` one update is sb3-contrib's TRPO update. See ``docs/algorithm.md``.
+    TRPO: Schulman et al. (2015) https://arxiv.org/abs/1502.05477. ``sample_reuse="generalized"``: each update also
+    learns from the last ``reuse_batches`` batches, importance-weighted, inside a trust region that accounts for
+    their age (Queeney et al. 2021, GeTRPO); it measured ahead of plain TRPO over seven tasks (docs/results.md). The
+    thesis' two proposals stay as options, measured and not recommended: P. Kovacs, *Learning of object grasping in a
+    robotic system* (master's thesis, 2017), section 5.3: a replay memory of the last ``k`` rollouts (5.3.1) and CG
+    warm-started with the previous update step (5.3.2, after Martens 2010). With ``sample_reuse="none"``,
+    ``replay_memory=0``, ``cg_warm_start=False`` and ``value_baseline="critic"`` one update is sb3-contrib's TRPO
+    update. See ``docs/algorithm.md``.
     Every argument is checked at construction (``HYPERPARAMETER_RULES``): a value of the wrong type or
     out of range raises ``ValueError`` naming the argument and the value.
 

@@ -429,7 +429,7 @@ def usage() -> str:
     lines = [
         f"usage: trpo-plus {{{','.join(COMMANDS)}}} [options]",
         "",
-        "TRPOPlus (TRPO with a replay memory and a warm-started conjugate gradient) on rl-zoo3.",
+        "TRPOPlus (TRPO with generalized sample reuse) on rl-zoo3.",
         "",
         "commands:",
         *(f"  {name:<{width}}  {SUMMARIES[name]}" for name in COMMANDS),
