@@ -96,6 +96,7 @@ TABLE: dict[str, Row] = {
     "replay_critic": Row([False, True], NOT_BOOL),
     "cg_warm_start": Row([False, True], NOT_BOOL),
     "cg_warm_start_rescale": Row([True, False], NOT_BOOL),
+    "covariance_kl": Row([None, 0.01, 1], [0.0, -1.0, *NOT_NUMBER]),
     "value_baseline": Row(["critic", "linear"], ["quadratic", "Critic", 0, True]),
     "linear_baseline_l2": Row([0.0, 2.0, 2], [-2.0, *NOT_NUMBER]),
     "stats_window_size": Row([1, 100], [0, *NOT_INT]),

@@ -84,6 +84,7 @@ HYPERPARAMETER_RULES: dict[str, Rule] = {
     "replay_critic": boolean(),
     "cg_warm_start": boolean(),
     "cg_warm_start_rescale": boolean(),
+    "covariance_kl": number(lambda x: x > 0, "> 0", optional=True),
     "value_baseline": Rule(lambda value: isinstance(value, str) and value in VALUE_BASELINES, f"one of {VALUE_BASELINES}"),
     "linear_baseline_l2": number(lambda x: x >= 0, ">= 0"),
     "stats_window_size": integer(1),

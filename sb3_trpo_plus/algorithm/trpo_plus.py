@@ -16,6 +16,7 @@ from gymnasium import spaces
 from sb3_contrib import TRPO
 from stable_baselines3.common.buffers import DictRolloutBuffer, RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.distributions import DiagGaussianDistribution
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import FloatSchedule, explained_variance
@@ -134,6 +135,11 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
         first update and after a rejected line search
     :param cg_warm_start_rescale: Rescale the warm start to its exact line minimiser
         ``(x0^T g / x0^T F x0) x0`` (free: it reuses the product the warm start needs anyway)
+    :param covariance_kl: ``None``: one trust region on the whole KL, as TRPO. A number: a decoupled trust region
+        (MPO's, Abdolmaleki et al. 2018) for a diagonal Gaussian policy: the KL of the mean stays within
+        ``target_kl`` and the KL of the covariance (the log-std) within ``covariance_kl``, each half of the
+        natural-gradient step scaled to its own radius, so that the exploration noise moves at its own pace
+        (:func:`~sb3_trpo_plus.algorithm.update.decoupled_gaussian_kl`)
     :param value_baseline: ``"critic"`` (SB3's value head) or ``"linear"`` (the thesis' ridge-regression
         baseline on ``[o, o^2, t, t^2, t^3, 1]``, thesis 5.1.3, refit every update)
     :param linear_baseline_l2: Ridge coefficient of the linear baseline (thesis: 2)
@@ -181,6 +187,7 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
         replay_critic: bool = False,
         cg_warm_start: bool = False,
         cg_warm_start_rescale: bool = True,
+        covariance_kl: float | None = None,
         value_baseline: str = "critic",
         linear_baseline_l2: float = 2.0,
         stats_window_size: int = 100,
@@ -237,6 +244,7 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
         self.replay_critic = replay_critic
         self.cg_warm_start = cg_warm_start
         self.cg_warm_start_rescale = cg_warm_start_rescale
+        self.covariance_kl = None if covariance_kl is None else float(covariance_kl)
         self.value_baseline = value_baseline
         self.linear_baseline_l2 = float(linear_baseline_l2)
         self._check_combinations({name: arguments[name] for name in _COMBINED})  # as the caller wrote them
@@ -293,6 +301,13 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
         super()._setup_model()
         self._update_target_kl()
         self._actor_params = actor_parameters(self.policy)
+        if getattr(self, "covariance_kl", None) is not None and not (
+            isinstance(self.policy.action_dist, DiagGaussianDistribution) and self._actor_params[-1] is self.policy.log_std
+        ):
+            raise ArgumentError(
+                "TRPOPlus: covariance_kl decouples the trust region of a diagonal Gaussian policy with a "
+                f"state-independent log-std; this policy's action distribution is {type(self.policy.action_dist).__name__}"
+            )
         memory = getattr(self, "rollout_memory", None)
         reuse = self.reuse
         capacity = reuse.n_batches - 1 if reuse is not None else self.replay_memory
@@ -503,6 +518,7 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
             cg_max_steps=self.cg_max_steps,
             cg_damping=self.cg_damping,
             cg_warm_start_rescale=self.cg_warm_start_rescale,
+            covariance_kl=getattr(self, "covariance_kl", None),  # None in a model saved before the option existed
             fisher_sub_sampling=self.fisher_sub_sampling,
             line_search_shrinking_factor=self.line_search_shrinking_factor,
             line_search_max_iter=self.line_search_max_iter,

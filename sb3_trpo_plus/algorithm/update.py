@@ -123,6 +123,9 @@ class NaturalGradientSettings:
     :param fisher_sub_sampling: estimate the Fisher products on every n-th sample
     :param line_search_shrinking_factor: backtracking factor
     :param line_search_max_iter: line-search trials
+    :param covariance_kl: None: one trust region on the whole KL. A number: the trust region is decoupled, as MPO's
+        (Abdolmaleki et al. 2018): the mean's KL is bounded by the step's radius and the covariance's by this one
+        (:func:`decoupled_gaussian_kl`); for a diagonal Gaussian policy with a state-independent log-std
     """
 
     cg_max_steps: int
@@ -131,6 +134,7 @@ class NaturalGradientSettings:
     fisher_sub_sampling: int = 1
     line_search_shrinking_factor: float = 0.8
     line_search_max_iter: int = 10
+    covariance_kl: float | None = None
 
 
 # ---------------------------------------------------------------------------------------------------- functions
@@ -227,17 +231,34 @@ def natural_gradient_step(
         fvp, gradient, x0=start, max_iter=settings.cg_max_steps, warm_start_rescale=settings.cg_warm_start_rescale
     )
     direction = cg.solution
-    quadratic_form = cg.quadratic_form if cg.quadratic_form > 0 else float(th.dot(direction, fvp(direction)))
-    full_step = math.sqrt(2.0 * step_kl / quadratic_form) * direction if quadratic_form > 0 else direction * math.nan
+    covariance_kl, extra_products = settings.covariance_kl, 0
+    if covariance_kl is None:
+        quadratic_form = cg.quadratic_form if cg.quadratic_form > 0 else float(th.dot(direction, fvp(direction)))
+        full_step = math.sqrt(2.0 * step_kl / quadratic_form) * direction if quadratic_form > 0 else direction * math.nan
+        extra_products = 0 if cg.quadratic_form > 0 else 1
+    else:  # the log-std is the last actor parameter (actor_parameters): its block of the step gets its own radius
+        std_size = int(actor_params[-1].numel())
+        mean_part = th.cat([direction[:-std_size], th.zeros_like(direction[-std_size:])])
+        std_part = direction - mean_part
+        mean_step = _scaled_to_kl(mean_part, fvp, step_kl)
+        std_step = _scaled_to_kl(std_part, fvp, covariance_kl * step_kl / max_kl)
+        full_step = mean_step + (std_step if th.isfinite(std_step).all() else th.zeros_like(std_step))
+        extra_products = 2
+
+    def weighted_mean(kl: th.Tensor) -> float:
+        if weights is not None:
+            kl = kl * weights.reshape(-1, *([1] * (kl.dim() - 1)))
+        return float(kl.mean())
 
     def evaluate() -> tuple[float, float]:
         new_distribution = policy.get_distribution(batch.observations)
         new_log_prob = new_distribution.log_prob(actions)
         new_objective = (advantages * th.exp(new_log_prob - batch.sampling_log_prob)).mean()
-        kl = kl_divergence(new_distribution, anchor)
-        if weights is not None:
-            kl = kl * weights.reshape(-1, *([1] * (kl.dim() - 1)))
-        return float(new_objective), float(kl.mean())
+        if covariance_kl is None:
+            return float(new_objective), weighted_mean(kl_divergence(new_distribution, anchor))
+        mean_kl, std_kl = decoupled_gaussian_kl(anchor, new_distribution)
+        # within both radii exactly when this is within max_kl: the line search's one test
+        return float(new_objective), max_kl * max(weighted_mean(mean_kl) / max_kl, weighted_mean(std_kl) / covariance_kl)
 
     result = backtracking_line_search(
         actor_params,
@@ -256,10 +277,37 @@ def natural_gradient_step(
         cg_residual=cg.residual_norm,
         cg_relative_residual=cg.residual_norm / max(float(th.linalg.vector_norm(gradient)), 1e-12),
         step_gradient_cosine=_cosine(gradient, direction),
-        fisher_vector_products=cg.matvecs + (0 if cg.quadratic_form > 0 else 1),
+        fisher_vector_products=cg.matvecs + extra_products,
         cg_warm_start_cosine=_cosine(start, direction) if start is not None else 0.0,
         replay_ess=surrogate.replay_ess,
     )
+
+
+def decoupled_gaussian_kl(old: Distribution, new: Distribution) -> tuple[th.Tensor, th.Tensor]:
+    """The KL that TRPO bounds, ``KL(new || old)`` (SB3's ``kl_divergence(new, old)``), of two diagonal Gaussian
+    policies, split into the part of the mean and the part of the covariance as MPO decouples it (Abdolmaleki et al.
+    2018), per sample and action dimension:
+
+    - mean: ``KL(N(mu_new, s_old) || N(mu_old, s_old)) = (mu_new - mu_old)^2 / (2 s_old^2)``;
+    - covariance: ``KL(N(mu_old, s_new) || N(mu_old, s_old)) = log(s_old / s_new) + s_new^2 / (2 s_old^2) - 1/2``.
+
+    The two add up to the whole KL exactly; to second order around ``new = old`` the mean's part is the Fisher
+    matrix's block of the mean's parameters, the covariance's its log-std block.
+    """
+    old_normal, new_normal = old.distribution, new.distribution
+    if not (isinstance(old_normal, th.distributions.Normal) and isinstance(new_normal, th.distributions.Normal)):
+        raise TypeError(f"decoupled_gaussian_kl: needs diagonal Gaussian policies, got {type(old).__name__}")
+    old_variance, new_std = old_normal.stddev**2, new_normal.stddev
+    mean_kl = (new_normal.mean - old_normal.mean) ** 2 / (2.0 * old_variance)
+    std_kl = th.log(old_normal.stddev / new_std) + new_std**2 / (2.0 * old_variance) - 0.5
+    return mean_kl, std_kl
+
+
+def _scaled_to_kl(direction: th.Tensor, fvp: Callable[[th.Tensor], th.Tensor], kl: float) -> th.Tensor:
+    """``direction`` scaled to the quadratic KL ``kl`` (``1/2 x^T F x``); NaN where its quadratic form is not
+    positive (a direction the line search then refuses)."""
+    quadratic_form = float(th.dot(direction, fvp(direction)))
+    return math.sqrt(2.0 * kl / quadratic_form) * direction if quadratic_form > 0 else direction * math.nan
 
 
 def replay_policy_batch(
