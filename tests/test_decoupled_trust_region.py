@@ -75,3 +75,24 @@ def test_it_needs_a_diagonal_gaussian_policy() -> None:
         TRPOPlus("MlpPolicy", make_vec_env("Pendulum-v1", n_envs=1), covariance_kl=0.01, use_sde=True, **TINY)
     with pytest.raises(ArgumentError, match=r"`covariance_kl` must be None or a finite number > 0, got 0"):
         TRPOPlus("MlpPolicy", make_vec_env("Pendulum-v1", n_envs=1), covariance_kl=0, **TINY)
+
+
+def test_the_covariance_radius_narrows_with_the_generalized_radius(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Generalized sample reuse steps within a radius below target_kl; the covariance's radius keeps its ratio to the
+    mean's (twice here), so that neither part outruns the other."""
+    import sb3_trpo_plus.algorithm.trpo_plus as trpo_plus_module
+
+    seen: list[tuple[float, float, float | None]] = []
+    original = trpo_plus_module.natural_gradient_step
+
+    def recording(*args, **kwargs):  # type: ignore[no-untyped-def]
+        seen.append((kwargs["step_kl"], kwargs["max_kl"], kwargs["covariance_kl"]))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(trpo_plus_module, "natural_gradient_step", recording)
+    env = make_vec_env("Pendulum-v1", n_envs=2, seed=4)
+    model = TRPOPlus("MlpPolicy", env, sample_reuse="generalized", reuse_batches=2, covariance_kl=0.02, target_kl=0.01, **TINY)
+    model.learn(model.n_steps * 2 * 3)
+    assert len(seen) == 3 and any(step_kl < 0.01 for step_kl, _, _ in seen)  # the reuse radius is narrower
+    for step_kl, max_kl, covariance_kl in seen:
+        assert step_kl == max_kl and covariance_kl == pytest.approx(2 * step_kl)

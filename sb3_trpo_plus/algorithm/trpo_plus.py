@@ -139,7 +139,8 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
         (MPO's, Abdolmaleki et al. 2018) for a diagonal Gaussian policy: the KL of the mean stays within
         ``target_kl`` and the KL of the covariance (the log-std) within ``covariance_kl``, each half of the
         natural-gradient step scaled to its own radius, so that the exploration noise moves at its own pace
-        (:func:`~sb3_trpo_plus.algorithm.update.decoupled_gaussian_kl`)
+        (:func:`~sb3_trpo_plus.algorithm.update.decoupled_gaussian_kl`). Where generalized sample reuse narrows the
+        mean's radius below ``target_kl``, the covariance's narrows by the same factor
     :param value_baseline: ``"critic"`` (SB3's value head) or ``"linear"`` (the thesis' ridge-regression
         baseline on ``[o, o^2, t, t^2, t^3, 1]``, thesis 5.1.3, refit every update)
     :param linear_baseline_l2: Ridge coefficient of the linear baseline (thesis: 2)
@@ -496,6 +497,9 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
         surrogate = surrogate_advantages(
             batch, distribution.log_prob(actions).detach(), self.normalize_advantage, self.replay_is_clip
         )
+        covariance_kl = getattr(self, "covariance_kl", None)  # None in a model saved before the option existed
+        if covariance_kl is not None:  # the covariance's radius shrinks with the mean's (generalized reuse's radius)
+            covariance_kl *= radius / self.current_target_kl
         return natural_gradient_step(
             self.policy,
             self._actor_params,
@@ -508,6 +512,7 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
             max_kl=radius,
             settings=self.natural_gradient_settings,
             warm_start=warm_start_from(self.previous_step) if self.cg_warm_start else no_warm_start,
+            covariance_kl=covariance_kl,
         )
 
     @property
@@ -518,7 +523,6 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
             cg_max_steps=self.cg_max_steps,
             cg_damping=self.cg_damping,
             cg_warm_start_rescale=self.cg_warm_start_rescale,
-            covariance_kl=getattr(self, "covariance_kl", None),  # None in a model saved before the option existed
             fisher_sub_sampling=self.fisher_sub_sampling,
             line_search_shrinking_factor=self.line_search_shrinking_factor,
             line_search_max_iter=self.line_search_max_iter,

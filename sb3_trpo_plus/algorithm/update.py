@@ -123,9 +123,6 @@ class NaturalGradientSettings:
     :param fisher_sub_sampling: estimate the Fisher products on every n-th sample
     :param line_search_shrinking_factor: backtracking factor
     :param line_search_max_iter: line-search trials
-    :param covariance_kl: None: one trust region on the whole KL. A number: the trust region is decoupled, as MPO's
-        (Abdolmaleki et al. 2018): the mean's KL is bounded by the step's radius and the covariance's by this one
-        (:func:`decoupled_gaussian_kl`); for a diagonal Gaussian policy with a state-independent log-std
     """
 
     cg_max_steps: int
@@ -134,7 +131,6 @@ class NaturalGradientSettings:
     fisher_sub_sampling: int = 1
     line_search_shrinking_factor: float = 0.8
     line_search_max_iter: int = 10
-    covariance_kl: float | None = None
 
 
 # ---------------------------------------------------------------------------------------------------- functions
@@ -202,6 +198,7 @@ def natural_gradient_step(
     max_kl: float,
     settings: NaturalGradientSettings,
     warm_start: Callable[[th.Tensor], th.Tensor | None] = no_warm_start,
+    covariance_kl: float | None = None,
 ) -> PolicyStep:
     """One natural-gradient step of ``actor_params`` from where they are (they are changed in place).
 
@@ -214,6 +211,11 @@ def natural_gradient_step(
     :param policy: the policy whose ``get_distribution`` evaluates the trials
     :param actor_params: the parameters the step changes
     :param actions: the batch's actions as the distribution takes them
+    :param covariance_kl: None: one trust region on the whole KL. A number: the trust region is decoupled, as MPO's
+        (Abdolmaleki et al. 2018), for a diagonal Gaussian policy whose log-std is the last of ``actor_params``: the
+        KL of the mean (:func:`decoupled_gaussian_kl`) within ``max_kl`` (its full step of quadratic KL
+        ``step_kl``), the KL of the covariance within ``covariance_kl`` (its full step of
+        ``covariance_kl * step_kl / max_kl``)
     """
     advantages = surrogate.advantages
     log_prob = distribution.log_prob(actions)
@@ -231,7 +233,7 @@ def natural_gradient_step(
         fvp, gradient, x0=start, max_iter=settings.cg_max_steps, warm_start_rescale=settings.cg_warm_start_rescale
     )
     direction = cg.solution
-    covariance_kl, extra_products = settings.covariance_kl, 0
+    extra_products = 0
     if covariance_kl is None:
         quadratic_form = cg.quadratic_form if cg.quadratic_form > 0 else float(th.dot(direction, fvp(direction)))
         full_step = math.sqrt(2.0 * step_kl / quadratic_form) * direction if quadratic_form > 0 else direction * math.nan
