@@ -69,6 +69,7 @@ class MultiStepTRPOPlus(TRPOPlus):
                 max_kl=radius,
                 settings=self.natural_gradient_settings,
                 warm_start=first_start if index == 0 else no_warm_start,
+                covariance_kl=self.covariance_radius(radius),
             )
             steps.append(step)
             if step.applied_step is None:

@@ -497,9 +497,6 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
         surrogate = surrogate_advantages(
             batch, distribution.log_prob(actions).detach(), self.normalize_advantage, self.replay_is_clip
         )
-        covariance_kl = getattr(self, "covariance_kl", None)  # None in a model saved before the option existed
-        if covariance_kl is not None:  # the covariance's radius shrinks with the mean's (generalized reuse's radius)
-            covariance_kl *= radius / self.current_target_kl
         return natural_gradient_step(
             self.policy,
             self._actor_params,
@@ -512,8 +509,14 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
             max_kl=radius,
             settings=self.natural_gradient_settings,
             warm_start=warm_start_from(self.previous_step) if self.cg_warm_start else no_warm_start,
-            covariance_kl=covariance_kl,
+            covariance_kl=self.covariance_radius(radius),
         )
+
+    def covariance_radius(self, radius: float) -> float | None:
+        """The covariance's radius of a step whose mean's radius is ``radius`` (``covariance_kl``): it narrows with
+        the mean's, as generalized reuse narrows that below ``target_kl``. None: one trust region."""
+        covariance_kl = getattr(self, "covariance_kl", None)  # None in a model saved before the option existed
+        return None if covariance_kl is None else covariance_kl * radius / self.current_target_kl
 
     @property
     def natural_gradient_settings(self) -> NaturalGradientSettings:
