@@ -210,9 +210,9 @@ def _variant(name: str, entry: Mapping[str, Any]) -> Variant:
     if entry.get("algo") not in ALGOS:
         raise fail(f"algo must be one of {ALGOS}, got {entry.get('algo')!r}")
     hyperparameters = dict(entry.get("hyperparameters") or {})
-    for key in ("env_kwargs", "env_wrapper", "n_envs", "normalize", "policy"):
+    for key, where in (("env_kwargs", "env_kwargs"), ("env_wrapper", "train_wrappers"), ("policy", "")):
         if key in hyperparameters:
-            raise fail(f"hyperparameters cannot set {key} (a variant changes the model's settings there)")
+            raise fail(f"hyperparameters cannot set {key}" + (f" (a variant sets {where})" if where else ""))
     if not isinstance(hyperparameters.get("policy_kwargs", {}), dict):
         raise fail("policy_kwargs must be a mapping (it adds to the zoo's)")
     for key, value in hyperparameters.items():

@@ -10,6 +10,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+from torch import nn
 
 import grasp_envs  # noqa: F401  (registers the envs)
 from grasp_envs.wrappers import ScriptedStarts
@@ -108,6 +109,26 @@ def test_a_variant_with_a_wrong_key_or_value_is_refused(tmp_path: Path, entry: d
     path.write_text(json.dumps({"envs": {}, "study_variants": [], "variants": {"bad": entry}}))  # JSON is YAML
     with pytest.raises(StudyError, match=message):
         study.load_study(path)
+
+
+def test_the_ppo_peer_takes_the_recipes_envs_networks_and_normalisation_and_keeps_ppos_update() -> None:
+    """The PPO peer of the locomotion tasks: n_envs, normalize, gamma, lambda and the policy of the TRPOPlus variant
+    it is measured against, with rl-zoo3's PPO update (learning rate, epochs, minibatches, clip range)."""
+    peer, ours = VARIANTS["ppo_trpo_plus_settings"], VARIANTS["generalized_reuse_andrychowicz"]
+    for env_id in ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5"):
+        got, recipe, zoo_ppo = (
+            study.settings(peer, env_id),
+            study.settings(ours, env_id),
+            study.settings(VARIANTS["ppo"], env_id),
+        )
+        assert got.n_envs == recipe.n_envs == 2 and zoo_ppo.n_envs == 1
+        assert got.normalize_kwargs == recipe.normalize_kwargs == {"gamma": 0.99}
+        for key in ("n_steps", "gamma", "gae_lambda"):
+            assert got.kwargs[key] == recipe.kwargs[key], key
+        # SB3's default activation is TRPOPlus' (tanh); the peer names it, as rl-zoo3's PPO recipe sets relu
+        assert got.kwargs["policy_kwargs"] == {"activation_fn": nn.Tanh, **recipe.kwargs["policy_kwargs"]}
+        for key in ("learning_rate", "n_epochs", "batch_size", "clip_range"):
+            assert got.kwargs[key] == zoo_ppo.kwargs[key], key
 
 
 def test_a_target_kl_schedule_is_data() -> None:
