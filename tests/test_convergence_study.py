@@ -131,6 +131,16 @@ def test_the_ppo_peer_takes_the_recipes_envs_networks_and_normalisation_and_keep
             assert got.kwargs[key] == zoo_ppo.kwargs[key], key
 
 
+@pytest.mark.parametrize("env_id", ["Hopper-v5", "HalfCheetah-v5", "Walker2d-v5"])
+def test_the_locomotion_recipes_are_the_variant_the_study_measured(env_id: str) -> None:
+    """zoo_hyperparams/trpo_plus.yml's locomotion recipes are generalized_reuse_andrychowicz on the study's pinned
+    rl-zoo3 TRPO settings, so its runs are the recipe's (docs/results.md (h))."""
+    from sb3_trpo_plus.application.zoo import load_hyperparameters
+
+    recipe = load_hyperparameters(ROOT / "zoo_hyperparams" / "trpo_plus.yml", "trpo_plus", [env_id])[env_id]
+    assert recipe == study.hyperparameters(VARIANTS["generalized_reuse_andrychowicz"], env_id)
+
+
 def test_a_target_kl_schedule_is_data() -> None:
     shrink = VARIANTS["warm_scripted25_late_klshrink"].hyperparameters["target_kl"]
     assert shrink == study.HoldThenShrink(0.01, 0.001, 0.4)

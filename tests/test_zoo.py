@@ -453,3 +453,25 @@ def test_train_collects_with_the_recipes_rollout_worker(tmp_path: Path, monkeypa
     assert error.value.code == 2
     assert "collects with rollout workers (rollout_workers: process:1); --vec-env batch does not apply" in message
     assert "--hyperparams rollout_workers:None overlap_collection:False" in message
+
+
+@pytest.mark.parametrize("env_id", ["Hopper-v5", "HalfCheetah-v5", "Walker2d-v5"])
+def test_the_locomotion_recipes_learn_with_andrychowicz_defaults_and_sample_reuse(env_id: str) -> None:
+    """The recipe of each MuJoCo locomotion task (docs/results.md (h)): separate 64-64 actor and 256-256 critic, the
+    policy's last layer initialised at gain 0.01, std 0.5 at the start, GAE lambda 0.9, generalized sample reuse."""
+    import numpy as np
+    import torch as th
+
+    from sb3_trpo_plus import make_model
+
+    model = make_model(env_id, seed=0)
+    policy = model.policy
+    assert [layer.out_features for layer in policy.mlp_extractor.policy_net if isinstance(layer, th.nn.Linear)] == [64, 64]
+    assert [layer.out_features for layer in policy.mlp_extractor.value_net if isinstance(layer, th.nn.Linear)] == [256, 256]
+    assert np.allclose(policy.log_std.exp().detach().numpy(), 0.5, atol=1e-3)
+    # orthogonal at gain 0.01: every singular value of the action layer is 0.01 (SB3's default init would be ~0.1-1)
+    singular = th.linalg.svdvals(policy.action_net.weight.detach())
+    assert th.allclose(singular, th.full_like(singular, 0.01), atol=1e-5)
+    assert model.gae_lambda == 0.9 and model.sample_reuse == "generalized" and model.reuse_batches == 2
+    assert model.n_steps * model.n_envs == 1024
+    model.env.close()
