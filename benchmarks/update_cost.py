@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import platform
 import statistics
 import time
 from collections.abc import Callable, Sequence
@@ -23,6 +24,7 @@ from typing import Any
 import torch as th
 
 from benchmarks.builders import new_model
+from benchmarks.machine import cpu_name
 from benchmarks.study import LABELS, VARIANTS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -93,7 +95,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     repeats = [{variant: measure(args.env, variant, args.steps) for variant in args.variants} for _ in range(args.repeats)]
     print("\n".join(summary(args.env, args.variants, repeats)))
     if args.out is not None:
-        args.out.write_text(json.dumps({"env": args.env, "steps": args.steps, "repeats": repeats}, indent=1) + "\n")
+        machine = {"cpu": cpu_name(), "python": platform.python_version(), "torch": th.__version__}
+        record = {"env": args.env, "steps": args.steps, "machine": machine, "repeats": repeats}
+        args.out.write_text(json.dumps(record, indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -47,3 +47,16 @@ def test_summary_gives_medians_over_repeats_and_the_median_ratio_to_the_first_va
     assert lines[4] == f"| {LABELS['plain']} | 4 | 2.00 | 4.00 | 1.00 |"
     # ratios per repeat 3.0, 1.0, 2.5: median 2.5 (not the ratio of the medians, 3.0 / 2.0)
     assert lines[5] == f"| {LABELS['ppo']} | 8 | 3.00 | 6.00 | 2.50 |"
+
+
+def test_main_prints_the_table_and_writes_every_repeat_with_the_machine(tmp_path, capsys) -> None:
+    import json
+
+    out = tmp_path / "cost.json"
+    update_cost.main(["--env", "Reacher2D-v0", "--variants", "plain", "--steps", "2048", "--repeats", "1", "--out", str(out)])
+    assert f"| {LABELS['plain']} | 1 |" in capsys.readouterr().out
+    record = json.loads(out.read_text())
+    assert record["env"] == "Reacher2D-v0" and record["steps"] == 2048 and len(record["repeats"]) == 1
+    assert set(record["machine"]) == {"cpu", "python", "torch"}
+    with pytest.raises(SystemExit):
+        update_cost.main(["--variants", "plain", "--repeats", "0"])
