@@ -25,9 +25,7 @@ import torch as th
 
 from benchmarks.builders import new_model
 from benchmarks.machine import cpu_name
-from benchmarks.study import LABELS, VARIANTS
-
-ROOT = Path(__file__).resolve().parents[1]
+from benchmarks.study import BUDGETS, LABELS, VARIANTS
 
 
 def timed(function: Callable[..., Any], seconds: list[float]) -> Callable[..., Any]:
@@ -84,7 +82,7 @@ def summary(env_id: str, variants: Sequence[str], repeats: list[dict[str, dict[s
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--env", default="HalfCheetah-v5")
+    parser.add_argument("--env", default="HalfCheetah-v5", choices=sorted(BUDGETS), help="one of the study's envs")
     parser.add_argument("--variants", nargs="+", choices=sorted(VARIANTS), required=True)
     parser.add_argument("--steps", type=int, default=40_960)
     parser.add_argument("--repeats", type=int, default=3)
