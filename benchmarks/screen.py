@@ -8,6 +8,9 @@ budget / 25 steps, so a 1M run is screened at 327,680 steps from its 8th evaluat
 seeds, the mean return at the cut and the area (mean of the evaluations up to the cut); then P(X > baseline) on the
 area with rliable's 95 % stratified-bootstrap interval, per env and over the envs (rliable averages the per-env
 probabilities). A variant screens on the seeds every variant of the table has reached the cut with.
+
+Several ``--baseline`` variants are peers: on each env the baseline is the one with the larger mean area at the cut
+(``--baseline ppo ppo_trpo_plus_settings``: the better PPO on each task), and the screen says which it is.
 """
 
 from __future__ import annotations
@@ -34,13 +37,25 @@ def cut(rows: list[dict[str, float]], steps: int) -> list[dict[str, float]] | No
     return within
 
 
+def area(rows: list[dict[str, float]]) -> float:
+    """A run's area up to the cut: the mean of its evaluations' returns."""
+    return float(np.mean([row["eval_return"] for row in rows]))
+
+
 def screen(
-    envs: Sequence[str], variants: Sequence[str], baseline: str, steps: int, seeds: Sequence[int] | None, out: Path
+    envs: Sequence[str],
+    variants: Sequence[str],
+    baseline: str | Sequence[str],
+    steps: int,
+    seeds: Sequence[int] | None,
+    out: Path,
 ) -> list[str]:
-    """The screen's markdown: one table of returns, one of P(X > baseline)."""
+    """The screen's markdown: one table of returns, one of P(X > baseline); several baselines are peers, the one with
+    the larger mean area on each env its baseline."""
     from rliable import metrics
 
-    everyone = [baseline, *variants]
+    peers = [baseline] if isinstance(baseline, str) else list(baseline)
+    everyone = list(dict.fromkeys([*peers, *variants]))
     runs: dict[str, dict[str, dict[int, list[dict[str, float]]]]] = {}
     for env in envs:
         runs[env] = {}
@@ -65,31 +80,43 @@ def screen(
                 lines.append(f"| {env} | {LABELS[variant]} | none yet | | |")
                 continue
             final = [rows[-1]["eval_return"] for rows in kept.values()]
-            area = [float(np.mean([row["eval_return"] for row in rows])) for rows in kept.values()]
+            areas = [area(rows) for rows in kept.values()]
             lines.append(
                 f"| {env} | {LABELS[variant]} | {' '.join(map(str, sorted(kept)))} | {np.mean(final):,.0f} "
-                f"({min(final):,.0f}-{max(final):,.0f}) | {np.mean(area):,.0f} |"
+                f"({min(final):,.0f}-{max(final):,.0f}) | {np.mean(areas):,.0f} |"
             )
-    lines += ["", f"| P(X > {LABELS[baseline]}), area | " + " | ".join([*envs, "over the envs"]) + " |"]
+    # each env's baseline: the peer with the larger mean area (a peer without runs at the cut never is)
+    chosen = {
+        env: max(
+            peers, key=lambda peer: np.mean([area(rows) for rows in runs[env][peer].values()]) if runs[env][peer] else -np.inf
+        )
+        for env in envs
+    }
+    name = LABELS[peers[0]] if len(peers) == 1 else "the better of " + " and ".join(LABELS[peer] for peer in peers)
+    if len(peers) > 1:
+        lines += [
+            "",
+            "Baseline on each env (the larger mean area): " + "; ".join(f"{env}: {LABELS[chosen[env]]}" for env in envs) + ".",
+        ]
+    lines += ["", f"| P(X > {name}), area | " + " | ".join([*envs, "over the envs"]) + " |"]
     lines.append("|---|" + "---|" * (len(envs) + 1))
-    for variant in variants:
-        n = min(len(runs[env][v]) for env in envs for v in (variant, baseline))
+    for variant in [v for v in variants if v not in peers]:
+        n = min(min(len(runs[env][variant]), len(runs[env][chosen[env]])) for env in envs)
         if n < 2:
             lines.append(f"| {LABELS[variant]} | " + " | ".join(["fewer than 2 seeds"] * (len(envs) + 1)) + " |")
             continue
 
-        def scores(name: str, tasks: Sequence[str], count: int = n) -> np.ndarray:
+        def scores(names: dict[str, str], tasks: Sequence[str], count: int = n) -> np.ndarray:
             matrix = np.zeros((count, len(tasks)))
             for j, env in enumerate(tasks):
-                for i, rows in enumerate(list(runs[env][name].values())[:count]):
-                    matrix[i, j] = np.mean([row["eval_return"] for row in rows])
+                for i, rows in enumerate(list(runs[env][names[env]].values())[:count]):
+                    matrix[i, j] = area(rows)
             return matrix
 
         cells = []
         for tasks in [[env] for env in envs] + [list(envs)]:
-            point, interval = interval_estimates(
-                {"pair": (scores(variant, tasks), scores(baseline, tasks))}, metrics.probability_of_improvement
-            )
+            pair = (scores(dict.fromkeys(envs, variant), tasks), scores(chosen, tasks))
+            point, interval = interval_estimates({"pair": pair}, metrics.probability_of_improvement)
             low, high = (float(np.squeeze(interval["pair"][k])) for k in (0, 1))
             cells.append(f"{float(np.squeeze(point['pair'])):.2f} [{low:.2f}, {high:.2f}]")
         lines.append(f"| {LABELS[variant]} ({n} seeds) | " + " | ".join(cells) + " |")
@@ -100,14 +127,19 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--envs", nargs="+", required=True)
     parser.add_argument("--variants", nargs="+", required=True, help="the levers screened")
-    parser.add_argument("--baseline", required=True, help="the variant each lever is compared with")
+    parser.add_argument(
+        "--baseline",
+        nargs="+",
+        required=True,
+        help="the variant each lever is compared with; several: peers, the one with the larger mean area on each env",
+    )
     parser.add_argument("--others", nargs="*", default=[], help="variants shown beside them (compared too)")
     parser.add_argument("--steps", type=int, required=True, help="the screen's budget (env steps)")
     parser.add_argument("--seeds", type=int, nargs="+", default=None, help="default: every seed that reached the cut")
     parser.add_argument("--runs", type=Path, default=OUT, help="the study's folder (default: benchmarks/results/convergence)")
     parser.add_argument("--out", type=Path, default=None, help="also write the tables to this markdown file")
     args = parser.parse_args(argv)
-    unknown = sorted(set([*args.variants, args.baseline, *args.others]) - set(LABELS))
+    unknown = sorted(set([*args.variants, *args.baseline, *args.others]) - set(LABELS))
     if unknown:
         parser.error(f"unknown variants {unknown}")
     lines = screen(args.envs, [*args.variants, *args.others], args.baseline, args.steps, args.seeds, args.runs)

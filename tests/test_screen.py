@@ -43,3 +43,21 @@ def test_the_screen_tables_by_hand(screen, tmp_path: Path) -> None:
     ppo_row = next(line for line in lines if line.startswith("| SB3 PPO (3 seeds)"))
     assert ppo_row.split(" | ")[1].startswith(f"{(8 + 0.5) / 9:.2f} [")
     assert next(line for line in lines if line.startswith("| sb3-contrib TRPO")).count("fewer than 2 seeds") == 2
+
+
+def test_several_baselines_are_peers_the_better_one_on_each_env(screen, tmp_path: Path) -> None:
+    """ppo is the better peer on Hopper, trpo on HalfCheetah; the lever is compared with each env's better one."""
+    for seed in range(3):
+        _write(tmp_path, "Hopper-v5", "ppo", seed, [4.0 + seed] * 3)  # areas 4, 5, 6
+        _write(tmp_path, "Hopper-v5", "trpo", seed, [1.0] * 3)
+        _write(tmp_path, "HalfCheetah-v5", "ppo", seed, [1.0] * 3)
+        _write(tmp_path, "HalfCheetah-v5", "trpo", seed, [10.0] * 3)
+        _write(tmp_path, "Hopper-v5", "plain", seed, [5.0] * 3)  # level with ppo's middle seed
+        _write(tmp_path, "HalfCheetah-v5", "plain", seed, [2.0] * 3)  # behind trpo, ahead of ppo
+    lines = screen.screen(["Hopper-v5", "HalfCheetah-v5"], ["plain"], ["ppo", "trpo"], 300, None, tmp_path)
+    assert "Baseline on each env (the larger mean area): Hopper-v5: SB3 PPO; HalfCheetah-v5: sb3-contrib TRPO." in lines
+    header = next(line for line in lines if line.startswith("| P(X > "))
+    assert header.startswith("| P(X > the better of SB3 PPO and sb3-contrib TRPO), area |")
+    cells = next(line for line in lines if line.startswith("| TRPOPlus plain (3 seeds)")).split(" | ")[1:]
+    # Hopper: 5 against 4, 5, 6: one ahead, one tie, one behind = 0.5; HalfCheetah: 2 against 10: 0; mean 0.25
+    assert [cell.split(" [")[0] for cell in cells] == ["0.50", "0.00", "0.25"]
