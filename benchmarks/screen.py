@@ -73,6 +73,7 @@ def screen(
         "| env | variant | seeds | return at the cut | area |",
         "|---|---|---|---|---|",
     ]
+    mean_area: dict[tuple[str, str], float] = {}  # (env, variant) -> the mean area over its seeds at the cut
     for env in envs:
         for variant in everyone:
             kept = runs[env][variant]
@@ -81,17 +82,13 @@ def screen(
                 continue
             final = [rows[-1]["eval_return"] for rows in kept.values()]
             areas = [area(rows) for rows in kept.values()]
+            mean_area[env, variant] = float(np.mean(areas))
             lines.append(
                 f"| {env} | {LABELS[variant]} | {' '.join(map(str, sorted(kept)))} | {np.mean(final):,.0f} "
-                f"({min(final):,.0f}-{max(final):,.0f}) | {np.mean(areas):,.0f} |"
+                f"({min(final):,.0f}-{max(final):,.0f}) | {mean_area[env, variant]:,.0f} |"
             )
     # each env's baseline: the peer with the larger mean area (a peer without runs at the cut never is)
-    chosen = {
-        env: max(
-            peers, key=lambda peer: np.mean([area(rows) for rows in runs[env][peer].values()]) if runs[env][peer] else -np.inf
-        )
-        for env in envs
-    }
+    chosen = {env: max(peers, key=lambda peer: mean_area.get((env, peer), -np.inf)) for env in envs}
     name = LABELS[peers[0]] if len(peers) == 1 else "the better of " + " and ".join(LABELS[peer] for peer in peers)
     if len(peers) > 1:
         lines += [

@@ -469,7 +469,7 @@ def test_the_locomotion_recipes_learn_with_andrychowicz_defaults_and_sample_reus
     assert [layer.out_features for layer in policy.mlp_extractor.policy_net if isinstance(layer, th.nn.Linear)] == [64, 64]
     assert [layer.out_features for layer in policy.mlp_extractor.value_net if isinstance(layer, th.nn.Linear)] == [256, 256]
     assert np.allclose(policy.log_std.exp().detach().numpy(), 0.5, atol=1e-3)
-    # orthogonal at gain 0.01: every singular value of the action layer is 0.01 (SB3's default init would be ~0.1-1)
+    # orthogonal at gain 0.01 (SB3's ortho_init, kept by the recipe): every singular value of the action layer is 0.01
     singular = th.linalg.svdvals(policy.action_net.weight.detach())
     assert th.allclose(singular, th.full_like(singular, 0.01), atol=1e-5)
     assert model.gae_lambda == 0.9 and model.sample_reuse == "generalized" and model.reuse_batches == 2
