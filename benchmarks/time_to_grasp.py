@@ -104,6 +104,10 @@ def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any
 
     th.set_num_threads(1)
     model = make_model(args.env, algo=algo, seed=seed, sim_threads=args.sim_threads, workers=args.workers, **overrides)
+    if args.algo_class is not None:  # the same envs and recipe, trained by the subclass with its own arguments
+        env = model.get_env()
+        constructor = recipe(args.env, algo).replace(**overrides).constructor_arguments()
+        model = algorithm_class(args.algo_class, algo)(model.policy_class, env, seed=seed, **constructor, **args.class_kwargs)
     pool = rollout_workers(model.get_env())  # type: ignore[arg-type]
     folder = args.out / (args.name or algo)
     folder.mkdir(parents=True, exist_ok=True)
@@ -146,6 +150,8 @@ def run(algo: str, seed: int, args: argparse.Namespace, overrides: dict[str, Any
         "sim_threads": args.sim_threads,
         "workers": args.workers or trained_recipe.get("rollout_workers"),
         "overrides": overrides,
+        "algo_class": args.algo_class,
+        "class_kwargs": args.class_kwargs,
         "recipe": trained_recipe,
         "env_steps_per_s": round(model.num_timesteps / trained),
         "phase_medians": {key: round(float(np.median(values)), 4) for key, values in phases.items()},
@@ -295,6 +301,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--sim-threads", type=int, default=1)
     parser.add_argument("--workers", default=None, metavar="BACKEND:N", help="collect with N rollout workers (make_model)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="recipe overrides (YAML values)")
+    parser.add_argument(
+        "--algo-class", default=None, metavar="MODULE.CLASS", help="a subclass of --algo's class that trains instead"
+    )
+    parser.add_argument(
+        "--class-set", nargs="*", default=[], metavar="KEY=VALUE", help="--algo-class's own arguments (YAML values)"
+    )
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument(
         "--compare",
@@ -312,14 +324,39 @@ def main(argv: Sequence[str] | None = None) -> None:
         return
     if args.compare or args.only or args.plot != "time_to_grasp.png":
         parser.error("--compare, --only and --plot are report options")
-    overrides: dict[str, Any] = {}
-    for pair in args.set:
-        key, sep, text = pair.partition("=")
-        if not sep:
-            parser.error(f"--set takes KEY=VALUE, got {pair!r}")
-        overrides[key] = yaml.safe_load(text)
+    overrides = _pairs(parser, "--set", args.set)
+    args.class_kwargs = _pairs(parser, "--class-set", args.class_set)
+    if args.class_kwargs and args.algo_class is None:
+        parser.error("--class-set sets the arguments of --algo-class")
     for seed in args.seeds:
         print(f"wrote {run(args.algo, seed, args, overrides)}", flush=True)
+
+
+def _pairs(parser: argparse.ArgumentParser, option: str, pairs: Sequence[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` texts as a dict, each value read as YAML."""
+    values: dict[str, Any] = {}
+    for pair in pairs:
+        key, sep, text = pair.partition("=")
+        if not sep:
+            parser.error(f"{option} takes KEY=VALUE, got {pair!r}")
+        values[key] = yaml.safe_load(text)
+    return values
+
+
+def algorithm_class(path: str, algo: str) -> Any:
+    """The class ``module.Class``, which must subclass ``algo``'s."""
+    import importlib
+
+    from sb3_trpo_plus.application.zoo import algorithms
+
+    module, _, name = path.rpartition(".")
+    if not module:
+        raise ValueError(f"--algo-class takes MODULE.CLASS, got {path!r}")
+    cls = getattr(importlib.import_module(module), name)
+    base = algorithms()[algo]
+    if not (isinstance(cls, type) and issubclass(cls, base)):
+        raise ValueError(f"--algo-class {path} is not a subclass of {base.__name__} (--algo {algo})")
+    return cls
 
 
 if __name__ == "__main__":

@@ -124,3 +124,18 @@ def test_report_of_named_folders_only(tmp_path: Path, capsys) -> None:
     assert "shown (5.0k env steps/s): median 10 s" in out and "hidden" not in out
     with pytest.raises(ValueError, match="no result folder absent"):
         time_to_grasp.report(tmp_path, only=["shown", "absent"])
+
+
+def test_algo_class_must_subclass_the_algorithm() -> None:
+    from benchmarks.projection import ProjectedTRPOPlus
+
+    assert time_to_grasp.algorithm_class("benchmarks.projection.ProjectedTRPOPlus", "trpo_plus") is ProjectedTRPOPlus
+    with pytest.raises(ValueError, match="not a subclass of PPO"):
+        time_to_grasp.algorithm_class("benchmarks.projection.ProjectedTRPOPlus", "ppo")
+    with pytest.raises(ValueError, match="MODULE.CLASS"):
+        time_to_grasp.algorithm_class("ProjectedTRPOPlus", "trpo_plus")
+
+
+def test_class_arguments_need_a_class() -> None:
+    with pytest.raises(SystemExit):
+        time_to_grasp.main(["--class-set", "projection_epochs=2"])
