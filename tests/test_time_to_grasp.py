@@ -132,7 +132,7 @@ def test_algo_class_must_subclass_the_algorithm() -> None:
     assert time_to_grasp.algorithm_class("benchmarks.projection.ProjectedTRPOPlus", "trpo_plus") is ProjectedTRPOPlus
     with pytest.raises(ValueError, match="not a subclass of PPO"):
         time_to_grasp.algorithm_class("benchmarks.projection.ProjectedTRPOPlus", "ppo")
-    with pytest.raises(ValueError, match="MODULE.CLASS"):
+    with pytest.raises(ValueError, match=r"MODULE\.CLASS"):
         time_to_grasp.algorithm_class("ProjectedTRPOPlus", "trpo_plus")
 
 
