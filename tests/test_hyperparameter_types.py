@@ -97,6 +97,13 @@ TABLE: dict[str, Row] = {
     "cg_warm_start": Row([False, True], NOT_BOOL),
     "cg_warm_start_rescale": Row([True, False], NOT_BOOL),
     "covariance_kl": Row([None, 0.01, 1], [0.0, -1.0, *NOT_NUMBER]),
+    "policy_update": Row(["natural_gradient", "projection"], ["Projection", "trpo", None, 1, True]),
+    # the projection_* rows are built with policy_update="projection" (_build), which the other values need
+    "projection_epochs": Row([1, 10], [0, -1, *NOT_INT]),
+    "projection_minibatches": Row([1, 32], [0, *NOT_INT]),
+    "projection_learning_rate": Row([3e-4, 1], [0.0, -1e-3, *NOT_NUMBER]),
+    "projection_regression": Row([0.0, 1.0, 2], [-1.0, *NOT_NUMBER]),
+    "projection_max_grad_norm": Row([0.5, 1], [0.0, -1.0, *NOT_NUMBER]),
     "value_baseline": Row(["critic", "linear"], ["quadratic", "Critic", 0, True]),
     "linear_baseline_l2": Row([0.0, 2.0, 2], [-2.0, *NOT_NUMBER]),
     "stats_window_size": Row([1, 100], [0, *NOT_INT]),
@@ -128,6 +135,8 @@ def _build(env: DummyVecEnv, name: str, value: Any) -> TRPOPlus:
     """A model on ``env`` with ``name=value``, its networks built only where ``_init_setup_model`` is the row."""
     kwargs: dict[str, Any] = {"policy": "MlpPolicy", "env": env, "n_steps": 8, "batch_size": 8, "_init_setup_model": False}
     kwargs[name] = value
+    if name.startswith("projection_"):
+        kwargs["policy_update"] = "projection"
     if kwargs["_init_setup_model"]:
         kwargs["policy_kwargs"] = kwargs.get("policy_kwargs") or {"net_arch": [8]}
     return TRPOPlus(**kwargs)

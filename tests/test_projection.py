@@ -1,10 +1,9 @@
-"""The projected trust-region probe (benchmarks/projection.py): the projections against hand-computed values and
-finite differences, and every update of ProjectedTRPOPlus inside its trust region."""
+"""TRPOPlus' projected trust region (``policy_update="projection"``, sb3_trpo_plus/algorithm/projection.py): the
+projections against hand-computed values and finite differences, and every update inside its trust region."""
 
 import math
 import pathlib
-import sys
-from pathlib import Path
+import unittest.mock
 
 import numpy as np
 import pytest
@@ -12,15 +11,15 @@ import torch as th
 from scipy.optimize import brentq
 from stable_baselines3.common.env_util import make_vec_env
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from projection import (  # benchmarks/projection.py
-    ProjectedTRPOPlus,
+from sb3_trpo_plus import TRPOPlus
+from sb3_trpo_plus.algorithm.projection import (
     covariance_part,
     gaussian_kl,
     mean_part,
     project_mean,
     project_std,
 )
+from sb3_trpo_plus.common.arguments import ArgumentError
 
 TINY = dict(n_steps=64, batch_size=64, n_critic_updates=2, policy_kwargs=dict(net_arch=[16]))
 
@@ -89,9 +88,10 @@ def test_bad_bound_is_named(bound: float) -> None:
         project_std(th.ones(1, 1), th.ones(1, 1), bound)
 
 
-def _make(**kwargs: object) -> ProjectedTRPOPlus:
+def _make(**kwargs: object) -> TRPOPlus:
     env = make_vec_env("Pendulum-v1", n_envs=2, seed=3)
-    return ProjectedTRPOPlus("MlpPolicy", env, seed=3, **TINY, **kwargs)  # type: ignore[arg-type]
+    kwargs = {"policy_update": "projection", **kwargs}
+    return TRPOPlus("MlpPolicy", env, seed=3, **TINY, **kwargs)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("variant", [dict(), dict(sample_reuse="generalized", covariance_kl=0.002)])
@@ -130,9 +130,10 @@ def test_every_update_stays_in_the_trust_region(variant: dict) -> None:
 
 def test_a_non_finite_loss_never_reaches_the_weights() -> None:
     model = _make(projection_epochs=2, projection_minibatches=2)
-    model._projection_loss = lambda *args: th.tensor(math.nan, requires_grad=True)  # type: ignore[method-assign]
+    nan = th.tensor(math.nan, requires_grad=True)
     start = [p.detach().clone() for p in model.policy.parameters()]
-    model.learn(128)
+    with unittest.mock.patch("sb3_trpo_plus.algorithm.projection.projection_loss", lambda *args: nan * 1.0):
+        model.learn(128)
     actor = {id(p) for p in model._actor_params}
     for before, param in zip(start, model.policy.parameters(), strict=True):
         if id(param) in actor:
@@ -143,8 +144,10 @@ def test_a_non_finite_loss_never_reaches_the_weights() -> None:
 def test_save_load_keeps_the_settings_and_the_optimizer(tmp_path: pathlib.Path) -> None:
     model = _make(projection_epochs=2, projection_minibatches=3, projection_learning_rate=1e-3).learn(128)
     model.save(tmp_path / "model")
-    loaded = ProjectedTRPOPlus.load(tmp_path / "model.zip")
+    loaded = TRPOPlus.load(tmp_path / "model.zip")
     assert (loaded.projection_epochs, loaded.projection_minibatches, loaded.projection_learning_rate) == (2, 3, 1e-3)
+    assert loaded.policy_update == "projection"
+    assert model.projection_optimizer is not None and loaded.projection_optimizer is not None
     saved, restored = model.projection_optimizer.state_dict(), loaded.projection_optimizer.state_dict()
     assert restored["param_groups"][0]["lr"] == 1e-3
     assert set(restored["state"]) == set(saved["state"]) and saved["state"]
@@ -162,14 +165,28 @@ def test_save_load_keeps_the_settings_and_the_optimizer(tmp_path: pathlib.Path) 
         ("projection_learning_rate", math.nan),
         ("projection_regression", -1.0),
         ("projection_max_grad_norm", 0.0),
+        ("policy_update", "projected"),
     ],
 )
 def test_bad_settings_are_named(name: str, value: object) -> None:
-    with pytest.raises(ValueError, match=name):
+    with pytest.raises(ArgumentError, match=name):
         _make(**{name: value})
+
+
+@pytest.mark.parametrize("conflict", [dict(cg_warm_start=True), dict(fisher_sub_sampling=4)])
+def test_conjugate_gradient_settings_are_refused(conflict: dict) -> None:
+    with pytest.raises(ArgumentError, match=f"policy_update='projection'.*{next(iter(conflict))}"):
+        _make(**conflict)
+
+
+def test_projection_settings_without_the_projection_are_refused() -> None:
+    env = make_vec_env("Pendulum-v1", n_envs=2, seed=3)
+    with pytest.raises(ArgumentError, match=r"\['projection_epochs'\] set the projected trust region"):
+        TRPOPlus("MlpPolicy", env, projection_epochs=3, **TINY)  # type: ignore[arg-type]
+    assert TRPOPlus("MlpPolicy", env, **TINY).projection_optimizer is None  # type: ignore[arg-type]
 
 
 def test_a_policy_that_is_no_diagonal_gaussian_is_refused() -> None:
     env = make_vec_env("CartPole-v1", n_envs=2, seed=0)
-    with pytest.raises(ValueError, match="diagonal Gaussian"):
-        ProjectedTRPOPlus("MlpPolicy", env, **TINY)  # type: ignore[arg-type]
+    with pytest.raises(ArgumentError, match="diagonal Gaussian"):
+        TRPOPlus("MlpPolicy", env, policy_update="projection", **TINY)  # type: ignore[arg-type]

@@ -42,14 +42,12 @@ def test_recommended_grasper_yaml_is_the_shipped_agents_config() -> None:
         "batch_size",
         "gamma",
         "gae_lambda",
-        "cg_max_steps",
-        "cg_damping",
+        "target_kl",
         "n_critic_updates",
-        "replay_memory",
-        "cg_warm_start",
         "sample_reuse",
         "reuse_batches",
-        "fisher_sub_sampling",
+        "policy_update",
+        "projection_minibatches",
         "overlap_collection",
     }
     assert algorithm_keys <= set(entry)
@@ -170,7 +168,8 @@ def test_make_model_builds_the_recipe_in_python() -> None:
     model = make_model(RECOMMENDED_GRASPER, seed=3, n_steps=16, batch_size=16)
     try:
         assert isinstance(model, TRPOPlus) and model.n_steps == 16 and model.seed == 3 and model.overlap_collection
-        assert (model.gamma, model.cg_max_steps, model.cg_warm_start) == (params["gamma"], params["cg_max_steps"], True)
+        assert (model.gamma, model.policy_update, model.projection_minibatches) == (params["gamma"], "projection", 8)
+        assert model.projection_optimizer is not None  # the projected trust region trains the actor
         env = model.get_env()
         assert isinstance(env, VecNormalize) and env.num_envs == params["n_envs"] and env.gamma == params["gamma"]
         assert isinstance(env.venv, ProcessRollouts) and env.venv.num_workers == 1

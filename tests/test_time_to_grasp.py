@@ -127,15 +127,15 @@ def test_report_of_named_folders_only(tmp_path: Path, capsys) -> None:
 
 
 def test_algo_class_must_subclass_the_algorithm() -> None:
-    from benchmarks.projection import ProjectedTRPOPlus
+    from benchmarks.multistep import MultiStepTRPOPlus
 
-    assert time_to_grasp.algorithm_class("benchmarks.projection.ProjectedTRPOPlus", "trpo_plus") is ProjectedTRPOPlus
+    assert time_to_grasp.algorithm_class("benchmarks.multistep.MultiStepTRPOPlus", "trpo_plus") is MultiStepTRPOPlus
     with pytest.raises(ValueError, match="not a subclass of PPO"):
-        time_to_grasp.algorithm_class("benchmarks.projection.ProjectedTRPOPlus", "ppo")
+        time_to_grasp.algorithm_class("benchmarks.multistep.MultiStepTRPOPlus", "ppo")
     with pytest.raises(ValueError, match=r"MODULE\.CLASS"):
-        time_to_grasp.algorithm_class("ProjectedTRPOPlus", "trpo_plus")
+        time_to_grasp.algorithm_class("MultiStepTRPOPlus", "trpo_plus")
 
 
 def test_class_arguments_need_a_class() -> None:
     with pytest.raises(SystemExit):
-        time_to_grasp.main(["--class-set", "projection_epochs=2"])
+        time_to_grasp.main(["--class-set", "n_policy_steps=2"])

@@ -18,6 +18,17 @@ from sb3_trpo_plus.common.arguments import ArgumentError, Rule, boolean, check_a
 
 VALUE_BASELINES = ("critic", "linear")
 SAMPLE_REUSE = ("none", "generalized")
+POLICY_UPDATES = ("natural_gradient", "projection")
+PROJECTION_DEFAULTS = {
+    "projection_epochs": 10,
+    "projection_minibatches": 32,
+    "projection_learning_rate": 3e-4,
+    "projection_regression": 1.0,
+    "projection_max_grad_norm": 0.5,
+}
+"""The ``projection_*`` hyperparameters' defaults: another value needs ``policy_update="projection"``."""
+CG_DEFAULTS = {"cg_max_steps": 15, "cg_damping": 0.1}
+"""The conjugate gradient's defaults (sb3-contrib's): another value needs ``policy_update="natural_gradient"``."""
 
 
 def _is_environment(value: Any) -> bool:
@@ -85,6 +96,12 @@ HYPERPARAMETER_RULES: dict[str, Rule] = {
     "cg_warm_start": boolean(),
     "cg_warm_start_rescale": boolean(),
     "covariance_kl": number(lambda x: x > 0, "> 0", optional=True),
+    "policy_update": Rule(lambda value: isinstance(value, str) and value in POLICY_UPDATES, f"one of {POLICY_UPDATES}"),
+    "projection_epochs": integer(1),
+    "projection_minibatches": integer(1),
+    "projection_learning_rate": number(lambda x: x > 0, "> 0"),
+    "projection_regression": number(lambda x: x >= 0, ">= 0"),
+    "projection_max_grad_norm": number(lambda x: x > 0, "> 0"),
     "value_baseline": Rule(lambda value: isinstance(value, str) and value in VALUE_BASELINES, f"one of {VALUE_BASELINES}"),
     "linear_baseline_l2": number(lambda x: x >= 0, ">= 0"),
     "stats_window_size": integer(1),
@@ -128,7 +145,10 @@ def check_combinations(hyperparameters: Mapping[str, Any]) -> None:
       ``replay_critic`` or ``replay_is_clip`` beside it;
     - its ``reuse_batches`` (``B``) is at most ``(reuse_max_batches + 1) / 2``, what equal weights over every batch
       reach;
-    - ``overlap_collection`` learns from segments one update old, which only the generalized update corrects for.
+    - ``overlap_collection`` learns from segments one update old, which only the generalized update corrects for;
+    - ``policy_update="projection"`` solves no CG: no ``cg_warm_start``, ``fisher_sub_sampling``, or ``cg_max_steps``
+      and ``cg_damping`` at other values than their defaults beside it; the ``projection_*`` hyperparameters at other
+      values than their defaults need it.
     """
     generalized = hyperparameters["sample_reuse"] == "generalized"
     if generalized:
@@ -149,6 +169,22 @@ def check_combinations(hyperparameters: Mapping[str, Any]) -> None:
             f"in [1, {most}] for `reuse_max_batches`={max_batches} (at most (`reuse_max_batches` + 1) / 2)",
         )
         check_arguments("TRPOPlus", {"reuse_batches": reachable}, {"reuse_batches": hyperparameters["reuse_batches"]})
+    if hyperparameters["policy_update"] == "projection":
+        conflicts = {
+            "cg_warm_start": hyperparameters["cg_warm_start"],
+            "fisher_sub_sampling": hyperparameters["fisher_sub_sampling"] > 1,
+            "cg_max_steps": hyperparameters["cg_max_steps"] != CG_DEFAULTS["cg_max_steps"],
+            "cg_damping": hyperparameters["cg_damping"] != CG_DEFAULTS["cg_damping"],
+        }
+        if named := [name for name, conflict in conflicts.items() if conflict]:
+            raise ArgumentError(
+                f"TRPOPlus: policy_update='projection' solves no conjugate gradient; it does not combine with {named}"
+            )
+    elif named := [name for name, default in PROJECTION_DEFAULTS.items() if hyperparameters[name] != default]:
+        raise ArgumentError(
+            f"TRPOPlus: {named} set the projected trust region; they need policy_update='projection', "
+            f"got policy_update={hyperparameters['policy_update']!r}"
+        )
     if hyperparameters["overlap_collection"] and not generalized:
         raise ArgumentError(
             "TRPOPlus: overlap_collection=True learns from segments one update old; it needs "

@@ -66,7 +66,13 @@ class SavedRun(_Algorithm):
             raise failure from error
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_actor_params"]
+        return [*super()._excluded_save_params(), "_actor_params", "projection_optimizer"]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        state_dicts, tensors = super()._get_torch_save_params()
+        if getattr(self, "projection_optimizer", None) is not None:  # policy_update="projection": its Adam moments
+            state_dicts = [*state_dicts, "projection_optimizer"]
+        return state_dicts, tensors
 
     def save(
         self,

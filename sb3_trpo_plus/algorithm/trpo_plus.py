@@ -33,6 +33,7 @@ from sb3_trpo_plus.algorithm.hyperparameters import (
     validate_hyperparameters,
 )
 from sb3_trpo_plus.algorithm.natural_gradient import detached_distribution
+from sb3_trpo_plus.algorithm.projection import ProjectionSettings, projected_policy_step
 from sb3_trpo_plus.algorithm.replay import (
     RolloutEvaluation,
     recompute_advantages,
@@ -140,7 +141,22 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
         ``target_kl`` and the KL of the covariance (the log-std) within ``covariance_kl``, each half of the
         natural-gradient step scaled to its own radius, so that the exploration noise moves at its own pace
         (:func:`~sb3_trpo_plus.algorithm.update.decoupled_gaussian_kl`). Where generalized sample reuse narrows the
-        mean's radius below ``target_kl``, the covariance's narrows by the same factor
+        mean's radius below ``target_kl``, the covariance's narrows by the same factor. With
+        ``policy_update="projection"``: the covariance's radius of the projection (None: the mean's)
+    :param policy_update: ``"natural_gradient"``: TRPO's step (CG, line search). ``"projection"``: the projected
+        trust region of Otto et al. 2021 (https://arxiv.org/abs/2101.09207) for a diagonal Gaussian policy with a
+        state-independent log-std: Adam epochs over minibatches, as PPO's, on the surrogate of the policy projected
+        state by state into the trust region (the mean's part of the KL within the update's radius, the covariance's
+        within ``covariance_kl``'s), a regression of the network to the projected policy, and the update's mean KL
+        bounded by the two radii as TRPO's line search bounds it (:mod:`sb3_trpo_plus.algorithm.projection`). The CG
+        settings do not apply; the line-search ones shrink a change whose KL is above the radii
+    :param projection_epochs: ``policy_update="projection"``: passes over the update's batch
+    :param projection_minibatches: ``policy_update="projection"``: minibatches per pass
+    :param projection_learning_rate: ``policy_update="projection"``: the actor's Adam step size (the critic keeps
+        ``learning_rate``)
+    :param projection_regression: ``policy_update="projection"``: weight of ``KL(network || projected)`` in the loss
+    :param projection_max_grad_norm: ``policy_update="projection"``: the actor's gradient clipped to this norm per
+        step (as PPO's ``max_grad_norm``)
     :param value_baseline: ``"critic"`` (SB3's value head) or ``"linear"`` (the thesis' ridge-regression
         baseline on ``[o, o^2, t, t^2, t^3, 1]``, thesis 5.1.3, refit every update)
     :param linear_baseline_l2: Ridge coefficient of the linear baseline (thesis: 2)
@@ -189,6 +205,12 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
         cg_warm_start: bool = False,
         cg_warm_start_rescale: bool = True,
         covariance_kl: float | None = None,
+        policy_update: str = "natural_gradient",
+        projection_epochs: int = 10,
+        projection_minibatches: int = 32,
+        projection_learning_rate: float = 3e-4,
+        projection_regression: float = 1.0,
+        projection_max_grad_norm: float = 0.5,
         value_baseline: str = "critic",
         linear_baseline_l2: float = 2.0,
         stats_window_size: int = 100,
@@ -246,6 +268,12 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
         self.cg_warm_start = cg_warm_start
         self.cg_warm_start_rescale = cg_warm_start_rescale
         self.covariance_kl = None if covariance_kl is None else float(covariance_kl)
+        self.policy_update = policy_update
+        self.projection_epochs = int(projection_epochs)
+        self.projection_minibatches = int(projection_minibatches)
+        self.projection_learning_rate = float(projection_learning_rate)
+        self.projection_regression = float(projection_regression)
+        self.projection_max_grad_norm = float(projection_max_grad_norm)
         self.value_baseline = value_baseline
         self.linear_baseline_l2 = float(linear_baseline_l2)
         self._check_combinations({name: arguments[name] for name in _COMBINED})  # as the caller wrote them
@@ -302,13 +330,18 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
         super()._setup_model()
         self._update_target_kl()
         self._actor_params = actor_parameters(self.policy)
-        if getattr(self, "covariance_kl", None) is not None and not (
+        projected = getattr(self, "policy_update", "natural_gradient") == "projection"  # older saves: TRPO's step
+        if (getattr(self, "covariance_kl", None) is not None or projected) and not (
             isinstance(self.policy.action_dist, DiagGaussianDistribution) and self._actor_params[-1] is self.policy.log_std
         ):
+            option = "policy_update='projection' projects" if projected else "covariance_kl decouples"
             raise ArgumentError(
-                "TRPOPlus: covariance_kl decouples the trust region of a diagonal Gaussian policy with a "
-                f"state-independent log-std; this policy's action distribution is {type(self.policy.action_dist).__name__}"
+                f"TRPOPlus: {option} the trust region of a diagonal Gaussian policy with a state-independent log-std; "
+                f"this policy's action distribution is {type(self.policy.action_dist).__name__}"
             )
+        self.projection_optimizer = (
+            th.optim.Adam(self._actor_params, lr=self.projection_learning_rate, eps=1e-5) if projected else None
+        )
         memory = getattr(self, "rollout_memory", None)
         reuse = self.reuse
         capacity = reuse.n_batches - 1 if reuse is not None else self.replay_memory
@@ -491,6 +524,20 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
         functions of :mod:`sb3_trpo_plus.algorithm.update`."""
         radius = self.current_target_kl if radius is None else radius
         actions = self.action_tensor(batch.actions)
+        if self.projection_optimizer is not None:  # policy_update="projection"
+            return projected_policy_step(
+                self.policy,
+                self._actor_params,
+                self.projection_optimizer,
+                batch,
+                actions,
+                mean_radius=radius,
+                covariance_radius=self.covariance_radius(radius) or radius,
+                normalize_advantage=self.normalize_advantage,
+                replay_is_clip=self.replay_is_clip,
+                settings=self.projection_settings,
+                record=self.logger.record,
+            )
         distribution = self.policy.get_distribution(batch.observations)
         # Anchor of the KL constraint and of the Fisher matrix: the current policy on all states
         anchor = detached_distribution(distribution)
@@ -517,6 +564,19 @@ class TRPOPlus(SavedRun, SegmentCollection, TRPO):
         the mean's, as generalized reuse narrows that below ``target_kl``. None: one trust region."""
         covariance_kl = getattr(self, "covariance_kl", None)  # None in a model saved before the option existed
         return None if covariance_kl is None else covariance_kl * radius / self.current_target_kl
+
+    @property
+    def projection_settings(self) -> ProjectionSettings:
+        """This model's ``projection_*`` and line-search hyperparameters, as
+        :func:`~sb3_trpo_plus.algorithm.projection.projected_policy_step` takes them."""
+        return ProjectionSettings(
+            epochs=self.projection_epochs,
+            minibatches=self.projection_minibatches,
+            regression=self.projection_regression,
+            max_grad_norm=self.projection_max_grad_norm,
+            line_search_shrinking_factor=self.line_search_shrinking_factor,
+            line_search_max_iter=self.line_search_max_iter,
+        )
 
     @property
     def natural_gradient_settings(self) -> NaturalGradientSettings:
@@ -578,6 +638,16 @@ _COMBINED = (
     "reuse_batches",
     "reuse_max_batches",
     "overlap_collection",
+    "policy_update",
+    "cg_warm_start",
+    "fisher_sub_sampling",
+    "cg_max_steps",
+    "cg_damping",
+    "projection_epochs",
+    "projection_minibatches",
+    "projection_learning_rate",
+    "projection_regression",
+    "projection_max_grad_norm",
 )
 """The hyperparameters :func:`~sb3_trpo_plus.algorithm.hyperparameters.check_combinations` reads."""
 
