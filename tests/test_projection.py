@@ -80,6 +80,19 @@ def test_projection_gradients_match_finite_differences() -> None:
     assert th.autograd.gradcheck(lambda s: project_std(s, old_std, 0.01), (std,), atol=1e-6)
 
 
+def test_a_shared_covariance_is_solved_once_with_the_same_result() -> None:
+    # SB3's state-independent log-std: every row the same; the one solve gives each row what its own solve gives
+    log_std = th.tensor([0.4, -0.9, 0.1], requires_grad=True)
+    old_std = th.ones(64, 3) * th.tensor([0.2, 0.1, 0.5]).exp()
+    shared = project_std(th.ones(64, 3) * log_std.exp(), old_std, 0.05)
+    (gradient,) = th.autograd.grad((shared * th.arange(192.0).reshape(64, 3)).sum(), log_std)
+    std = th.ones(64, 3) * log_std.exp()
+    rows = [project_std(std[i : i + 1], old_std[i : i + 1], 0.05) for i in range(64)]
+    assert th.equal(shared, th.cat(rows))
+    (row_gradient,) = th.autograd.grad((th.cat(rows) * th.arange(192.0).reshape(64, 3)).sum(), log_std)
+    np.testing.assert_allclose(gradient.numpy(), row_gradient.numpy(), rtol=1e-6)
+
+
 @pytest.mark.parametrize("bound", [0.0, -1.0, math.inf, math.nan])
 def test_bad_bound_is_named(bound: float) -> None:
     with pytest.raises(ValueError, match="bound"):

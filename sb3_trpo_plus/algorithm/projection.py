@@ -80,7 +80,8 @@ def project_std(std: th.Tensor, old_std: th.Tensor, bound: float, iterations: in
     bound: the part falls monotonically from its value at ``eta = 0`` to 0 as ``eta`` grows, and ``eta`` is found by
     bisection over ``log(eta)`` in float64 (``iterations`` halvings of :data:`_LOG_ETA_RANGE`). Its derivative in
     ``std`` is the implicit function's, ``-(dc/dstd) / (dc/deta)``, so the gradient of a loss of the projected
-    standard deviations is exact. Inside the bound ``std`` is unchanged.
+    standard deviations is exact. Inside the bound ``std`` is unchanged. Where every row of ``std`` and of ``old_std``
+    is the same (a state-independent log-std), the multiplier is solved once and shared.
     """
     if not (math.isfinite(bound) and bound > 0):
         raise ValueError(f"project_std: the bound must be a finite number > 0, got {bound!r}")
@@ -88,13 +89,16 @@ def project_std(std: th.Tensor, old_std: th.Tensor, bound: float, iterations: in
     if not bool(outside.any()):
         return std
     precision, old_precision = std.detach().double() ** -2, old_std.detach().double() ** -2
-    low = th.full(outside.shape, _LOG_ETA_RANGE[0], dtype=th.float64, device=std.device)
+    solved, old_solved = precision, old_precision
+    if std.dim() > 1 and len(std) > 1 and bool((std == std[:1]).all() and (old_std == old_std[:1]).all()):
+        solved, old_solved = precision[:1], old_precision[:1]  # one covariance for every state (a log-std): one solve
+    low = th.full(solved.shape[:-1], _LOG_ETA_RANGE[0], dtype=th.float64, device=std.device)
     high = th.full_like(low, _LOG_ETA_RANGE[1])
     for _ in range(iterations):
         middle = (low + high) / 2.0
-        above = _covariance_part_at(precision, old_precision, th.exp(middle).unsqueeze(-1)) > bound
+        above = _covariance_part_at(solved, old_solved, th.exp(middle).unsqueeze(-1)) > bound
         low, high = th.where(above, middle, low), th.where(above, high, middle)
-    eta_value = th.exp(high).unsqueeze(-1)  # the upper end: its part is within the bound
+    eta_value = th.exp(high).unsqueeze(-1).expand(*outside.shape, 1)  # the upper end: its part is within the bound
     # dc/deta at the solution (float64): (1/2) sum (1 - 1/r) q (p - q) / (p + eta q)^2, p and q the two precisions
     ratio = _interpolated_variance(precision, old_precision, eta_value) * old_precision
     denominator = (precision + eta_value * old_precision) ** 2
