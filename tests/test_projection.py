@@ -93,6 +93,39 @@ def test_a_shared_covariance_is_solved_once_with_the_same_result() -> None:
     np.testing.assert_allclose(gradient.numpy(), row_gradient.numpy(), rtol=1e-6)
 
 
+def _bisection_multiplier(precision: th.Tensor, old_precision: th.Tensor, bound: float, iterations: int) -> th.Tensor:
+    """The slow reference: 80 halvings of log(eta) in [-30, 30], the bracket's upper end."""
+    from sb3_trpo_plus.algorithm import projection
+
+    low = th.full(precision.shape[:-1], -30.0, dtype=th.float64)
+    high = th.full_like(low, 30.0)
+    for _ in range(80):
+        middle = (low + high) / 2.0
+        above = projection._covariance_part_at(precision, old_precision, th.exp(middle).unsqueeze(-1)) > bound
+        low, high = th.where(above, middle, low), th.where(above, high, middle)
+    return th.exp(high)
+
+
+def test_the_newton_solve_gives_the_bisections_projection() -> None:
+    generator = th.Generator().manual_seed(2)
+    old_std = th.exp(0.5 * th.randn(2000, 4, generator=generator))
+    std = old_std * th.exp(th.randn(2000, 4, generator=generator))
+    fast = project_std(std, old_std, 0.01)
+    with unittest.mock.patch("sb3_trpo_plus.algorithm.projection._solve_multiplier", _bisection_multiplier):
+        slow = project_std(std, old_std, 0.01)
+    assert bool((covariance_part(std, old_std) > 0.01).sum() > 1500)
+    np.testing.assert_allclose(fast.numpy(), slow.numpy(), rtol=1e-6)
+    assert float((fast != slow).float().mean()) < 0.01  # float32: the same value almost everywhere
+
+
+def test_learning_with_the_newton_solve_equals_the_bisection() -> None:
+    fast = _make(projection_epochs=2, projection_minibatches=4, sample_reuse="generalized").learn(1024)
+    with unittest.mock.patch("sb3_trpo_plus.algorithm.projection._solve_multiplier", _bisection_multiplier):
+        slow = _make(projection_epochs=2, projection_minibatches=4, sample_reuse="generalized").learn(1024)
+    for (name, a), b in zip(fast.policy.state_dict().items(), slow.policy.state_dict().values(), strict=True):
+        np.testing.assert_allclose(a.numpy(), b.numpy(), rtol=1e-5, atol=1e-7, err_msg=name)
+
+
 @pytest.mark.parametrize("bound", [0.0, -1.0, math.inf, math.nan])
 def test_bad_bound_is_named(bound: float) -> None:
     with pytest.raises(ValueError, match="bound"):

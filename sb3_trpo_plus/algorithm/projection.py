@@ -77,8 +77,8 @@ def project_std(std: th.Tensor, old_std: th.Tensor, bound: float, iterations: in
 
     Outside the bound the projected precision is ``(1 / std^2 + eta / old_std^2) / (1 + eta)`` (Otto et al.'s KL
     projection of a covariance, for a diagonal one), ``eta > 0`` the multiplier that puts the covariance part on the
-    bound: the part falls monotonically from its value at ``eta = 0`` to 0 as ``eta`` grows, and ``eta`` is found by
-    bisection over ``log(eta)`` in float64 (``iterations`` halvings of :data:`_LOG_ETA_RANGE`). Its derivative in
+    bound: the part falls monotonically from its value at ``eta = 0`` to 0 as ``eta`` grows, and ``eta`` is found in
+    float64 by Newton's method over ``log(eta)`` kept inside a bisection bracket (:func:`_solve_multiplier`). Its derivative in
     ``std`` is the implicit function's, ``-(dc/dstd) / (dc/deta)``, so the gradient of a loss of the projected
     standard deviations is exact. Inside the bound ``std`` is unchanged. Where every row of ``std`` and of ``old_std``
     is the same (a state-independent log-std), the multiplier is solved once and shared.
@@ -89,16 +89,14 @@ def project_std(std: th.Tensor, old_std: th.Tensor, bound: float, iterations: in
     if not bool(outside.any()):
         return std
     precision, old_precision = std.detach().double() ** -2, old_std.detach().double() ** -2
-    solved, old_solved = precision, old_precision
     if std.dim() > 1 and len(std) > 1 and bool((std == std[:1]).all() and (old_std == old_std[:1]).all()):
-        solved, old_solved = precision[:1], old_precision[:1]  # one covariance for every state (a log-std): one solve
-    low = th.full(solved.shape[:-1], _LOG_ETA_RANGE[0], dtype=th.float64, device=std.device)
-    high = th.full_like(low, _LOG_ETA_RANGE[1])
-    for _ in range(iterations):
-        middle = (low + high) / 2.0
-        above = _covariance_part_at(solved, old_solved, th.exp(middle).unsqueeze(-1)) > bound
-        low, high = th.where(above, middle, low), th.where(above, high, middle)
-    eta_value = th.exp(high).unsqueeze(-1).expand(*outside.shape, 1)  # the upper end: its part is within the bound
+        # one covariance for every state (a log-std): one solve, shared
+        shared = _solve_multiplier(precision[:1], old_precision[:1], bound, iterations)
+        eta_value = shared.expand(outside.shape).unsqueeze(-1)
+    else:  # the states outside the bound, each its own solve (the others keep eta = 0 below)
+        solved = th.ones(outside.shape, dtype=th.float64, device=std.device)
+        solved[outside] = _solve_multiplier(precision[outside], old_precision[outside], bound, iterations)
+        eta_value = solved.unsqueeze(-1)
     # dc/deta at the solution (float64): (1/2) sum (1 - 1/r) q (p - q) / (p + eta q)^2, p and q the two precisions
     ratio = _interpolated_variance(precision, old_precision, eta_value) * old_precision
     denominator = (precision + eta_value * old_precision) ** 2
@@ -111,6 +109,31 @@ def project_std(std: th.Tensor, old_std: th.Tensor, bound: float, iterations: in
     eta = eta_fixed - (live_part - live_part.detach()) / slope
     eta = th.where(outside, eta, th.zeros_like(eta)).unsqueeze(-1)
     return th.sqrt(_interpolated_variance(live_precision, old_std.detach() ** -2, eta))
+
+
+def _solve_multiplier(precision: th.Tensor, old_precision: th.Tensor, bound: float, iterations: int) -> th.Tensor:
+    """Per row, the ``eta`` whose interpolated covariance part is ``bound`` (float64; every row's part at ``eta = 0``
+    above it): Newton steps over ``t = log(eta)`` in :data:`_LOG_ETA_RANGE`, a step that leaves the bracket of the root
+    replaced by the bracket's midpoint, until no row's ``t`` moves by more than ``1e-13`` (at most ``iterations``)."""
+    low = th.full(precision.shape[:-1], _LOG_ETA_RANGE[0], dtype=th.float64, device=precision.device)
+    high = th.full_like(low, _LOG_ETA_RANGE[1])
+    t = th.zeros_like(low)
+    for _ in range(iterations):
+        eta = th.exp(t).unsqueeze(-1)
+        ratio = _interpolated_variance(precision, old_precision, eta) * old_precision
+        excess = ((ratio - 1.0 - th.log(ratio)) / 2.0).sum(-1) - bound
+        low, high = th.where(excess > 0, t, low), th.where(excess > 0, high, t)  # the part falls as t grows
+        slope = (
+            0.5 * (1.0 - 1.0 / ratio) * old_precision * (precision - old_precision) / (precision + eta * old_precision) ** 2
+        ).sum(-1)
+        newton = t - excess / (slope * eta.squeeze(-1))
+        inside = th.isfinite(newton) & (newton > low) & (newton < high)
+        step = th.where(inside, newton, (low + high) / 2.0)
+        converged = bool(((step - t).abs() <= 1e-13).all())
+        t = step
+        if converged:
+            break
+    return th.exp(t)
 
 
 def gaussian_kl(mean: th.Tensor, std: th.Tensor, other_mean: th.Tensor, other_std: th.Tensor) -> th.Tensor:
