@@ -97,10 +97,7 @@ def project_std(std: th.Tensor, old_std: th.Tensor, bound: float, iterations: in
         solved = th.ones(outside.shape, dtype=th.float64, device=std.device)
         solved[outside] = _solve_multiplier(precision[outside], old_precision[outside], bound, iterations)
         eta_value = solved.unsqueeze(-1)
-    # dc/deta at the solution (float64): (1/2) sum (1 - 1/r) q (p - q) / (p + eta q)^2, p and q the two precisions
-    ratio = _interpolated_variance(precision, old_precision, eta_value) * old_precision
-    denominator = (precision + eta_value * old_precision) ** 2
-    slope = (0.5 * (1.0 - 1.0 / ratio) * old_precision * (precision - old_precision) / denominator).sum(-1)
+    _, slope = _part_and_slope(precision, old_precision, eta_value)  # at the solution, float64
     slope = th.where(outside & (slope < 0), slope, th.full_like(slope, -1.0)).to(std.dtype)
     eta_fixed = eta_value.squeeze(-1).to(std.dtype)
     live_precision = std**-2
@@ -109,6 +106,15 @@ def project_std(std: th.Tensor, old_std: th.Tensor, bound: float, iterations: in
     eta = eta_fixed - (live_part - live_part.detach()) / slope
     eta = th.where(outside, eta, th.zeros_like(eta)).unsqueeze(-1)
     return th.sqrt(_interpolated_variance(live_precision, old_std.detach() ** -2, eta))
+
+
+def _part_and_slope(precision: th.Tensor, old_precision: th.Tensor, eta: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    """The covariance part at the interpolated precision of ``eta`` and its derivative in ``eta``:
+    ``(1/2) sum (1 - 1/r) q (p - q) / (p + eta q)^2``, ``p`` and ``q`` the two precisions, ``r`` the variance ratio."""
+    ratio = _interpolated_variance(precision, old_precision, eta) * old_precision
+    part = ((ratio - 1.0 - th.log(ratio)) / 2.0).sum(-1)
+    slope = 0.5 * (1.0 - 1.0 / ratio) * old_precision * (precision - old_precision) / (precision + eta * old_precision) ** 2
+    return part, slope.sum(-1)
 
 
 def _solve_multiplier(precision: th.Tensor, old_precision: th.Tensor, bound: float, iterations: int) -> th.Tensor:
@@ -120,12 +126,9 @@ def _solve_multiplier(precision: th.Tensor, old_precision: th.Tensor, bound: flo
     t = th.zeros_like(low)
     for _ in range(iterations):
         eta = th.exp(t).unsqueeze(-1)
-        ratio = _interpolated_variance(precision, old_precision, eta) * old_precision
-        excess = ((ratio - 1.0 - th.log(ratio)) / 2.0).sum(-1) - bound
+        part, slope = _part_and_slope(precision, old_precision, eta)
+        excess = part - bound
         low, high = th.where(excess > 0, t, low), th.where(excess > 0, high, t)  # the part falls as t grows
-        slope = (
-            0.5 * (1.0 - 1.0 / ratio) * old_precision * (precision - old_precision) / (precision + eta * old_precision) ** 2
-        ).sum(-1)
         newton = t - excess / (slope * eta.squeeze(-1))
         inside = th.isfinite(newton) & (newton > low) & (newton < high)
         step = th.where(inside, newton, (low + high) / 2.0)
