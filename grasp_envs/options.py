@@ -101,11 +101,24 @@ class ArgumentError(ValueError):
     """An argument, or a combination of arguments, that cannot work; the message names each as the caller wrote it."""
 
 
+def got(value: Any, *, with_type: bool = False) -> str:
+    """``"got <value>"`` (``"got <type> <value>"`` ``with_type``) for an error message; a number that arrives as a
+    ``str`` (from YAML: a recipe, ``--set``) says why, since YAML 1.1 reads ``6e-4`` as a string."""
+    text = f"got {type(value).__name__} {value!r}" if with_type else f"got {value!r}"
+    if isinstance(value, str):
+        try:
+            float(value)
+        except ValueError:
+            return text
+        return f"{text} (a number as a str; YAML 1.1 reads 6e-4 as one: write !!float {value} in YAML)"
+    return text
+
+
 def check(name: str, value: Any, rule: Rule) -> None:
     """Raise :class:`ArgumentError` ``"<name> must be <requirement>, got <value>"`` unless ``rule`` accepts ``value``
     (an option of a task's options dataclass)."""
     if not rule.accepts(value):
-        raise ArgumentError(f"{name} must be {rule.requirement}, got {value!r}")
+        raise ArgumentError(f"{name} must be {rule.requirement}, {got(value)}")
 
 
 def check_arguments(owner: str, rules: Mapping[str, Rule], arguments: Mapping[str, Any]) -> None:
@@ -115,7 +128,7 @@ def check_arguments(owner: str, rules: Mapping[str, Rule], arguments: Mapping[st
     for name, value in arguments.items():
         rule = rules[name]
         if not rule.accepts(value):
-            raise ArgumentError(f"{owner}: `{name}` must be {rule.requirement}, got {value!r}")
+            raise ArgumentError(f"{owner}: `{name}` must be {rule.requirement}, {got(value)}")
 
 
 def option(default: Any, rule: Rule) -> Any:

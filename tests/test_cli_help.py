@@ -185,6 +185,13 @@ def test_record_video_writes_into_a_folder(output: str, tmp_path: Path, capsys: 
 
 
 # ------------------------------------------------------------------ TRPOPlus: combinations refused at construction
+def test_a_number_given_as_a_str_is_refused_with_the_yaml_reason() -> None:
+    """``--set projection_learning_rate=6e-4`` arrives as the str '6e-4' (YAML 1.1): the error says so."""
+    with pytest.raises(ArgumentError) as error:
+        TRPOPlus("MlpPolicy", "Pendulum-v1", target_kl="6e-4")
+    assert str(error.value).endswith("got '6e-4' (a number as a str; YAML 1.1 reads 6e-4 as one: write !!float 6e-4 in YAML)")
+
+
 def test_reuse_batches_out_of_reach_of_reuse_max_batches_is_refused_at_construction() -> None:
     with pytest.raises(ArgumentError) as error:
         TRPOPlus("MlpPolicy", "Pendulum-v1", sample_reuse="generalized", reuse_batches=4, reuse_max_batches=2)

@@ -29,6 +29,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from grasp_envs import make_batch_env
 from grasp_envs.batch import BatchVecEnv
+from grasp_envs.options import got
 from grasp_envs.wrappers import ScriptedStarts
 from sb3_trpo_plus import TRPOPlus
 from sb3_trpo_plus.algorithm.segment import SegmentDictRolloutBuffer, SegmentRolloutBuffer
@@ -172,7 +173,7 @@ def _invalid_values() -> list[tuple[str, Any]]:
 def test_invalid_value_is_named(env: DummyVecEnv, name: str, value: Any) -> None:
     with pytest.raises(ValueError, match=f"TRPOPlus hyperparameter `{name}` must be ") as error:
         _build(env, name, value)
-    assert str(error.value).endswith(f"got {value!r}")
+    assert str(error.value).endswith(got(value))
 
 
 def test_string_for_a_bool_is_refused() -> None:
@@ -403,7 +404,7 @@ def test_invalid_argument_is_named(label: str, name: str, value: Any) -> None:
         _run(constructor, name, value)
     message = str(error.value)
     assert message.startswith(constructor.error.format(name)), message
-    assert message.endswith(f"got {value!r}"), message
+    assert message.endswith(got(value)), message
 
 
 def test_one_str_is_no_sequence_of_info_keys() -> None:

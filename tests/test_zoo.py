@@ -19,6 +19,7 @@ from sb3_trpo_plus import make_model
 from sb3_trpo_plus.application import cli
 from sb3_trpo_plus.application.run_folders import load_trained
 from sb3_trpo_plus.application.zoo import ALGO_FILES, ZOO_DIR, HyperparameterError, algorithms, load_hyperparameters
+from sb3_trpo_plus.common.arguments import got
 
 ROOT = Path(__file__).resolve().parent.parent
 ENTRIES = [(algo, env_id) for algo, f in ALGO_FILES.items() for env_id in load_hyperparameters(ZOO_DIR / f, algo)]
@@ -169,7 +170,7 @@ def test_yaml_value_of_another_type_is_named_with_its_file_and_entry(tmp_path: P
         load_hyperparameters(path, algo)
     message = str(error.value)
     assert message.startswith(f"{path}: Pendulum-v1: {name}: expected "), message
-    assert message.endswith(repr(value)), message
+    assert message.endswith(got(value, with_type=True)), message
 
 
 def test_a_float_is_no_int_but_n_timesteps_takes_rl_zoos_float(tmp_path: Path) -> None:
@@ -179,6 +180,19 @@ def test_a_float_is_no_int_but_n_timesteps_takes_rl_zoos_float(tmp_path: Path) -
         load_hyperparameters(path, "trpo_plus")
     path.write_text("Pendulum-v1:\n  n_timesteps: !!float 1e6\n  policy: MlpPolicy\n  n_steps: 64\n")
     assert load_hyperparameters(path, "trpo_plus")["Pendulum-v1"]["n_timesteps"] == 1e6
+
+
+def test_an_exponent_without_a_decimal_point_is_named_as_yamls_str(tmp_path: Path) -> None:
+    """YAML 1.1 reads ``1e-2`` as a str: the error says so and how to write the number (rl-zoo3's ``!!float``)."""
+    path = tmp_path / "kl.yml"
+    path.write_text("Pendulum-v1:\n  n_timesteps: !!float 1e6\n  policy: MlpPolicy\n  target_kl: 1e-2\n")
+    expected = (
+        "target_kl: expected int/float, got str '1e-2' (a number as a str; YAML 1.1 reads 6e-4 as one: write !!float 1e-2"
+    )
+    with pytest.raises(HyperparameterError, match=re.escape(expected)):
+        load_hyperparameters(path, "trpo_plus")
+    path.write_text(path.read_text().replace("1e-2", "!!float 1e-2"))
+    assert load_hyperparameters(path, "trpo_plus")["Pendulum-v1"]["target_kl"] == 0.01
 
 
 def _tensorboard_tags(folder: Path) -> set[str]:

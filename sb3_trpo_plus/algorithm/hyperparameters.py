@@ -14,7 +14,7 @@ from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_trpo_plus.algorithm.segment import SegmentDictRolloutBuffer, SegmentRolloutBuffer
-from sb3_trpo_plus.common.arguments import ArgumentError, Rule, boolean, check_arguments, integer, number, optional
+from sb3_trpo_plus.common.arguments import ArgumentError, Rule, boolean, check_arguments, got, integer, number, optional
 
 VALUE_BASELINES = ("critic", "linear")
 SAMPLE_REUSE = ("none", "generalized")
@@ -128,7 +128,7 @@ def validate_hyperparameters(**hyperparameters: Any) -> None:
         if rule is None:
             raise TypeError(f"TRPOPlus has no hyperparameter `{name}`")
         if not rule.accepts(value):
-            raise ArgumentError(f"TRPOPlus hyperparameter `{name}` must be {rule.requirement}, got {value!r}")
+            raise ArgumentError(f"TRPOPlus hyperparameter `{name}` must be {rule.requirement}, {got(value)}")
 
 
 def float_or_schedule(value: float | Schedule) -> float | Schedule:

@@ -16,7 +16,7 @@ import yaml
 from gymnasium.envs.registration import registry
 from torch import nn
 
-from sb3_trpo_plus.common.arguments import ArgumentError
+from sb3_trpo_plus.common.arguments import ArgumentError, got
 
 if TYPE_CHECKING:
     from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
@@ -192,9 +192,11 @@ def load_hyperparameters(path: str | Path, algo: str, env_ids: Iterable[str] | N
             types_ok = accepted[key]
             if not isinstance(value, types_ok) or (isinstance(value, bool) and bool not in types_ok):
                 names = "/".join(t.__name__ for t in types_ok)
-                raise HyperparameterError(f"{where}: expected {names}, got {type(value).__name__} {value!r}")
+                raise HyperparameterError(f"{where}: expected {names}, {got(value, with_type=True)}")
             if key in SCHEDULE_KEYS and isinstance(value, str) and not SCHEDULE_PATTERN.match(value):
-                raise HyperparameterError(f"{where}: expected a number or a schedule 'lin_<value>', got {value!r}")
+                raise HyperparameterError(
+                    f"{where}: expected a number or a schedule 'lin_<value>', {got(value, with_type=True)}"
+                )
             if key == "policy":
                 value = check_policy(value, where)
             elif key == "policy_kwargs":
@@ -397,7 +399,7 @@ def check_constructor_values(entry: dict[str, Any], where: str) -> None:
             except ValueError:
                 raise HyperparameterError(f"{where}: {key}: expected a schedule 'lin_<number>', got {value!r}") from None
         if not rule.accepts(value):
-            raise HyperparameterError(f"{where}: {key}: must be {rule.requirement}, got {entry[key]!r}")
+            raise HyperparameterError(f"{where}: {key}: must be {rule.requirement}, {got(entry[key])}")
     defaults = {name: parameter.default for name, parameter in inspect.signature(TRPOPlus).parameters.items()}
     try:
         check_combinations({**defaults, **entry})

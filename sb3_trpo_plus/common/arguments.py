@@ -16,7 +16,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
 # the primitives and the check are grasp_envs' (the options of its tasks follow the same rules)
-from grasp_envs.options import ArgumentError, Rule, check_arguments, integer, is_int, is_keywords, is_names
+from grasp_envs.options import ArgumentError, Rule, check_arguments, got, integer, is_int, is_keywords, is_names
 from grasp_envs.options import is_number as is_finite_number
 
 __all__ = [
@@ -26,6 +26,7 @@ __all__ = [
     "boolean",
     "check_arguments",
     "choice",
+    "got",
     "integer",
     "is_bool",
     "is_finite_number",
