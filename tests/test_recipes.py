@@ -47,6 +47,7 @@ def test_recommended_grasper_yaml_is_the_shipped_agents_config() -> None:
         "sample_reuse",
         "reuse_batches",
         "policy_update",
+        "projection_epochs",
         "projection_minibatches",
         "overlap_collection",
     }
@@ -168,7 +169,8 @@ def test_make_model_builds_the_recipe_in_python() -> None:
     model = make_model(RECOMMENDED_GRASPER, seed=3, n_steps=16, batch_size=16)
     try:
         assert isinstance(model, TRPOPlus) and model.n_steps == 16 and model.seed == 3 and model.overlap_collection
-        assert (model.gamma, model.policy_update, model.projection_minibatches) == (params["gamma"], "projection", 8)
+        assert (model.gamma, model.policy_update) == (params["gamma"], "projection")
+        assert (model.projection_epochs, model.projection_minibatches) == (5, 8)
         assert model.projection_optimizer is not None  # the projected trust region trains the actor
         env = model.get_env()
         assert isinstance(env, VecNormalize) and env.num_envs == params["n_envs"] and env.gamma == params["gamma"]
