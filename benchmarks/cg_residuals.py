@@ -1,11 +1,17 @@
 """Does the CG warm start reach the zero start's residual in fewer Fisher-vector products? Both starts, every update.
 
-    python -m benchmarks.cg_residuals --envs Grasper3D-v7 Hopper-v5 --updates 40 --seed 0
+    python -m benchmarks.cg_residuals --envs Hopper-v5 --updates 40 --seed 0
+    python -m benchmarks.cg_residuals --envs Grasper3D-v7 --updates 40 --seed 0 \\
+        --set policy_update=natural_gradient projection_epochs=10 projection_minibatches=32 cg_max_steps=25 \\
+        fisher_sub_sampling=4 --out benchmarks/results/cg_residuals_grasp.json --plot docs/images/cg_residuals_grasp.png
 
-Each env trains its recipe (zoo_hyperparams/trpo_plus.yml, ``cg_warm_start`` on, the recipe's ``cg_max_steps``) for
-``--updates`` updates. At every update that TRPOPlus warm-starts, the same gradient and Fisher products are also
-solved from zero, and the relative residual ``||g - F x_k|| / ||g||`` after every iteration of both solves is
-recorded. Training follows the warm-started solution, as TRPOPlus does; the zero-start solve only measures.
+Each env trains its recipe (zoo_hyperparams/trpo_plus.yml, ``cg_warm_start`` on, the recipe's ``cg_max_steps``;
+``--set KEY=VALUE`` overrides a recipe key on every env, the value a YAML scalar) for ``--updates`` updates. A recipe
+with the projected trust region solves no CG: ``--set policy_update=natural_gradient projection_epochs=10
+projection_minibatches=32`` measures its natural-gradient step. At every update that TRPOPlus warm-starts, the same
+gradient and Fisher products are also solved from zero, and the relative residual ``||g - F x_k|| / ||g||`` after
+every iteration of both solves is recorded. Training follows the warm-started solution, as TRPOPlus does; the
+zero-start solve only measures. Each result records the recipe it trained (``recipe``, its values as ``repr``).
 
 Per env the script prints the median relative residual after each iteration for both starts, and per residual level
 (0.3, 0.1, 0.03, 0.01) the Fisher-vector products each start needs to reach it (the warm start's first product, for
@@ -18,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import shlex
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -27,6 +34,7 @@ import torch as th
 
 import sb3_trpo_plus.algorithm.update as update_module
 from benchmarks.machine import cpu_name
+from benchmarks.time_to_grasp import recipe_overrides
 from sb3_trpo_plus.algorithm.natural_gradient import ConjugateGradientResult, conjugate_gradient
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,12 +49,14 @@ def products_to_reach(history: Sequence[float], target: float, start_cost: int) 
     return None
 
 
-def measure(env_id: str, updates: int, seed: int) -> dict[str, Any]:
-    """Train ``env_id``'s recipe with the warm start for ``updates`` updates; both starts' residual histories."""
-    from sb3_trpo_plus import TRPOPlus, make_model
+def measure(env_id: str, updates: int, seed: int, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Train ``env_id``'s recipe (``overrides`` on top) with the warm start for ``updates`` updates; both starts'
+    residual histories, and the recipe as trained."""
+    from sb3_trpo_plus import TRPOPlus, make_model, recipe
 
     th.set_num_threads(1)
-    model = make_model(env_id, seed=seed, cg_warm_start=True)
+    settings = {**(overrides or {}), "cg_warm_start": True}
+    model = make_model(env_id, seed=seed, **settings)
     assert isinstance(model, TRPOPlus)
     rows: list[dict[str, Any]] = []
     solve = update_module.conjugate_gradient
@@ -74,7 +84,8 @@ def measure(env_id: str, updates: int, seed: int) -> dict[str, Any]:
         env = model.get_env()
         if env is not None:
             env.close()
-    return {"env": env_id, "seed": seed, "cg_max_steps": model.cg_max_steps, "updates": rows}
+    trained = {key: repr(value) for key, value in {**recipe(env_id), **settings}.items()}
+    return {"env": env_id, "seed": seed, "cg_max_steps": model.cg_max_steps, "recipe": trained, "updates": rows}
 
 
 LEVELS = (0.3, 0.1, 0.03, 0.01)
@@ -142,22 +153,24 @@ def plot(results: Sequence[dict[str, Any]], path: Path) -> None:
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--envs", nargs="+", default=["Grasper3D-v7", "Hopper-v5"])
+    parser.add_argument("--envs", nargs="+", default=["Hopper-v5"])
     parser.add_argument("--updates", type=int, default=40)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "cg_residuals.json")
     parser.add_argument("--plot", type=Path, default=ROOT / "docs" / "images" / "cg_residuals.png")
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="recipe overrides (YAML values)")
     parser.add_argument("--summary", action="store_true", help="print the summary of --out's results; train nothing")
     args = parser.parse_args(argv)
+    overrides = recipe_overrides(parser, "--set", args.set)
     if args.summary:
         for result in json.loads(args.out.read_text())["results"]:
             print("\n".join(summary(result)) + "\n")
         return
-    results = [measure(env_id, args.updates, args.seed) for env_id in args.envs]
+    results = [measure(env_id, args.updates, args.seed, overrides) for env_id in args.envs]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     command = (
         "python -m benchmarks.cg_residuals --envs " + " ".join(args.envs) + f" --updates {args.updates} --seed {args.seed}"
-    )
+    ) + "".join(f" {shlex.quote(pair)}" for pair in (["--set", *args.set] if args.set else []))
     machine = {"cpu": cpu_name(), "python": platform.python_version(), "torch": th.__version__}
     args.out.write_text(json.dumps({"command": command, "machine": machine, "results": results}) + "\n")
     plot(results, args.plot)

@@ -324,16 +324,16 @@ def main(argv: Sequence[str] | None = None) -> None:
         return
     if args.compare or args.only or args.plot != "time_to_grasp.png":
         parser.error("--compare, --only and --plot are report options")
-    overrides = _pairs(parser, "--set", args.set)
-    args.class_kwargs = _pairs(parser, "--class-set", args.class_set)
+    overrides = recipe_overrides(parser, "--set", args.set)
+    args.class_kwargs = recipe_overrides(parser, "--class-set", args.class_set)
     if args.class_kwargs and args.algo_class is None:
         parser.error("--class-set sets the arguments of --algo-class")
     for seed in args.seeds:
         print(f"wrote {run(args.algo, seed, args, overrides)}", flush=True)
 
 
-def _pairs(parser: argparse.ArgumentParser, option: str, pairs: Sequence[str]) -> dict[str, Any]:
-    """``KEY=VALUE`` texts as a dict, each value read as YAML."""
+def recipe_overrides(parser: argparse.ArgumentParser, option: str, pairs: Sequence[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` texts (``--set``) as a dict, each value read as YAML; a text without ``=`` is a usage error."""
     values: dict[str, Any] = {}
     for pair in pairs:
         key, sep, text = pair.partition("=")

@@ -9,7 +9,10 @@
   are bash's own), then each recorded command is checked in this process: ``python -m benchmarks.X`` and
   ``trpo-plus VERB`` parse their arguments with the command's own parser (stopped right after the parse),
   ``make TARGET`` is a target the Makefile defines, ``pip install`` names extras pyproject.toml defines, and the
-  other tools exist. What the commands do is tested where they are (tests/test_cli*.py, tests of each benchmark).
+  other tools exist. A TRPOPlus run of ``benchmarks.time_to_grasp`` or ``benchmarks.cg_residuals`` also checks its
+  ``--set`` overrides on top of the env's recipe as it stands, as the constructor would (each value in its range,
+  the values together), so a documented command that a later recipe refuses fails here. What the commands do is
+  tested where they are (tests/test_cli*.py, tests of each benchmark).
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from typing import Any
 
 import pytest
 import tomllib
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -121,7 +125,11 @@ def recorded_commands(text: str, tmp_path: Path) -> list[list[str]]:
 
 
 class Parsed(Exception):
-    """Raised by the patched ``ArgumentParser.parse_args``: the command line parsed."""
+    """Raised by the patched ``ArgumentParser.parse_args``: the command line parsed (``namespace``)."""
+
+    def __init__(self, namespace: argparse.Namespace) -> None:
+        super().__init__()
+        self.namespace = namespace
 
 
 @pytest.fixture
@@ -130,21 +138,45 @@ def parse_only(monkeypatch: pytest.MonkeyPatch) -> None:
     original = argparse.ArgumentParser.parse_args
 
     def parse_args(self: argparse.ArgumentParser, *args: Any, **kwargs: Any) -> Any:
-        original(self, *args, **kwargs)
-        raise Parsed
+        raise Parsed(original(self, *args, **kwargs))
 
     monkeypatch.setattr(argparse.ArgumentParser, "parse_args", parse_args)
 
 
-def check_parses(main: Any, argv: list[str], monkeypatch: pytest.MonkeyPatch) -> None:
+def check_parses(main: Any, argv: list[str], monkeypatch: pytest.MonkeyPatch) -> argparse.Namespace:
+    """The namespace ``main``'s parser makes of ``argv``; the test fails where it does not parse."""
     monkeypatch.setattr(sys, "argv", ["prog", *argv])
     try:
         main(argv) if inspect.signature(main).parameters else main()
-    except Parsed:
-        return
+    except Parsed as parsed:
+        return parsed.namespace
     except SystemExit as error:
         pytest.fail(f"{argv} does not parse (exit {error.code})")
     pytest.fail(f"{argv}: the command ran past its argument parser")
+
+
+def trained_recipes(module: str, args: argparse.Namespace) -> tuple[list[str], list[str]]:
+    """The envs whose TRPOPlus recipe a parsed benchmark command trains (none for the others), and the ``KEY=VALUE``
+    overrides it trains them with: ``args.set``, and the CG warm start that ``cg_residuals`` switches on."""
+    if module == "benchmarks.time_to_grasp" and args.command == "run" and args.algo == "trpo_plus":
+        return [args.env], args.set
+    if module == "benchmarks.cg_residuals" and not args.summary:
+        return list(args.envs), [*args.set, "cg_warm_start=true"]
+    return [], []
+
+
+def check_overrides(env_ids: list[str], pairs: list[str], command: list[str]) -> None:
+    """``pairs`` (``KEY=VALUE``) on top of each env's TRPOPlus recipe pass the constructor's checks."""
+    from benchmarks.time_to_grasp import recipe_overrides
+    from sb3_trpo_plus.application.zoo import ALGO_FILES, ZOO_DIR, HyperparameterError, check_constructor_values
+
+    overrides = recipe_overrides(argparse.ArgumentParser(), "--set", pairs)
+    recipes = yaml.safe_load((ZOO_DIR / ALGO_FILES["trpo_plus"]).read_text())
+    for env_id in env_ids:
+        try:
+            check_constructor_values({**recipes[env_id], **overrides}, f"{env_id}'s recipe with {pairs}")
+        except HyperparameterError as error:
+            pytest.fail(f"{shlex.join(command)}: {error}")
 
 
 def makefile_targets() -> set[str]:
@@ -163,7 +195,10 @@ def check_command(command: list[str], monkeypatch: pytest.MonkeyPatch, tmp_path:
         module = args[1]
         if module.startswith("benchmarks."):
             monkeypatch.syspath_prepend(str(ROOT))  # benchmarks/ is a package of the checkout, not installed
-            check_parses(importlib.import_module(module).main, args[2:], monkeypatch)
+            parsed = check_parses(importlib.import_module(module).main, args[2:], monkeypatch)
+            env_ids, pairs = trained_recipes(module, parsed)
+            if env_ids:
+                check_overrides(env_ids, pairs, command)
         else:
             assert importlib.util.find_spec(module) is not None, f"python -m {module}: no such module"
     elif program == "trpo-plus":
