@@ -131,6 +131,34 @@ def test_the_ppo_peer_takes_the_recipes_envs_networks_and_normalisation_and_keep
             assert got.kwargs[key] == zoo_ppo.kwargs[key], key
 
 
+def test_the_ppo_peer_of_generalized_reuse_takes_its_envs_steps_and_sb3s_default_policy() -> None:
+    """The PPO peer of generalized reuse on rl-zoo3's TRPO settings: that variant's n_envs, n_steps, gamma, lambda and
+    normalisation, the policy SB3 builds without policy_kwargs (as that variant's), rl-zoo3's PPO update."""
+    import inspect
+
+    from stable_baselines3.common.policies import ActorCriticPolicy
+
+    defaults = {name: p.default for name, p in inspect.signature(ActorCriticPolicy.__init__).parameters.items()}
+    peer, ours = VARIANTS["ppo_reuse_settings"], VARIANTS["generalized_reuse"]
+    for env_id in ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5"):
+        got, reuse, zoo_ppo = (
+            study.settings(peer, env_id),
+            study.settings(ours, env_id),
+            study.settings(VARIANTS["ppo"], env_id),
+        )
+        assert got.n_envs == reuse.n_envs == 2
+        assert got.normalize_kwargs == reuse.normalize_kwargs == {"gamma": 0.99}
+        for key in ("n_steps", "gamma", "gae_lambda"):
+            assert got.kwargs[key] == reuse.kwargs[key], key
+        assert "policy_kwargs" not in reuse.kwargs
+        policy = got.kwargs["policy_kwargs"]
+        for key in ("log_std_init", "ortho_init", "activation_fn"):
+            assert policy[key] == defaults[key], key
+        assert defaults["net_arch"] is None and policy["net_arch"] == {"pi": [64, 64], "vf": [64, 64]}  # SB3's default
+        for key in ("learning_rate", "n_epochs", "batch_size", "clip_range"):
+            assert got.kwargs[key] == zoo_ppo.kwargs[key], key
+
+
 @pytest.mark.parametrize("env_id", ["Hopper-v5", "HalfCheetah-v5", "Walker2d-v5"])
 def test_the_locomotion_recipes_are_the_variant_the_study_measured(env_id: str) -> None:
     """zoo_hyperparams/trpo_plus.yml's locomotion recipes are generalized_reuse_andrychowicz on the study's pinned
