@@ -111,16 +111,17 @@ def test_a_variant_with_a_wrong_key_or_value_is_refused(tmp_path: Path, entry: d
         study.load_study(path)
 
 
+def _locomotion_settings(peer: str, ours: str) -> list[tuple[study.ModelSettings, ...]]:
+    """On each locomotion task: the settings of the PPO peer ``peer``, of the TRPOPlus variant ``ours`` it is measured
+    against, and of rl-zoo3's PPO."""
+    envs = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5")
+    return [tuple(study.settings(VARIANTS[name], env_id) for name in (peer, ours, "ppo")) for env_id in envs]
+
+
 def test_the_ppo_peer_takes_the_recipes_envs_networks_and_normalisation_and_keeps_ppos_update() -> None:
     """The PPO peer of the locomotion tasks: n_envs, normalize, gamma, lambda and the policy of the TRPOPlus variant
     it is measured against, with rl-zoo3's PPO update (learning rate, epochs, minibatches, clip range)."""
-    peer, ours = VARIANTS["ppo_trpo_plus_settings"], VARIANTS["generalized_reuse_andrychowicz"]
-    for env_id in ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5"):
-        got, recipe, zoo_ppo = (
-            study.settings(peer, env_id),
-            study.settings(ours, env_id),
-            study.settings(VARIANTS["ppo"], env_id),
-        )
+    for got, recipe, zoo_ppo in _locomotion_settings("ppo_trpo_plus_settings", "generalized_reuse_andrychowicz"):
         assert got.n_envs == recipe.n_envs == 2 and zoo_ppo.n_envs == 1
         assert got.normalize_kwargs == recipe.normalize_kwargs == {"gamma": 0.99}
         for key in ("n_steps", "gamma", "gae_lambda"):
@@ -139,13 +140,7 @@ def test_the_ppo_peer_of_generalized_reuse_takes_its_envs_steps_and_sb3s_default
     from stable_baselines3.common.policies import ActorCriticPolicy
 
     defaults = {name: p.default for name, p in inspect.signature(ActorCriticPolicy.__init__).parameters.items()}
-    peer, ours = VARIANTS["ppo_reuse_settings"], VARIANTS["generalized_reuse"]
-    for env_id in ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5"):
-        got, reuse, zoo_ppo = (
-            study.settings(peer, env_id),
-            study.settings(ours, env_id),
-            study.settings(VARIANTS["ppo"], env_id),
-        )
+    for got, reuse, zoo_ppo in _locomotion_settings("ppo_reuse_settings", "generalized_reuse"):
         assert got.n_envs == reuse.n_envs == 2
         assert got.normalize_kwargs == reuse.normalize_kwargs == {"gamma": 0.99}
         for key in ("n_steps", "gamma", "gae_lambda"):
